@@ -1,0 +1,244 @@
+"""Command line: ``ebus simulate``, ``ebus cycles``, ``ebus effects``, ``ebus demo``."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ebus_env.errors import EbusError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Lo-Fi electric-bus model: simulate, calibrate, diagnose.")
+
+BusOpt = Annotated[str, typer.Option("--bus", "-b", help="Bus config: name (12m, 18m, bmw_i3) "
+                                                         "or path to a YAML file")]
+WithOpt = Annotated[list[str] | None, typer.Option(
+    "--with", help="Add an effect: registry name or my_effects.py:Name (repeatable)")]
+WithoutOpt = Annotated[list[str] | None, typer.Option(
+    "--without", help="Remove an effect, e.g. cabin_hvac (repeatable; comma lists allowed)")]
+SetOpt = Annotated[list[str] | None, typer.Option(
+    "--set", help="Override a parameter: effect.param=value (repeatable)")]
+OverlayOpt = Annotated[list[Path] | None, typer.Option(
+    "--overlay", help="Bus-config overlay to merge, e.g. a calibration result")]
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+def _split(items: list[str] | None) -> list[str]:
+    return [part.strip() for item in items or [] for part in item.split(",") if part.strip()]
+
+
+def _overrides(items: list[str] | None) -> dict[str, float]:
+    from ebus_env.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise ConfigError(f"--set needs effect.param=value, got '{item}'.")
+        key, value = item.split("=", 1)
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            raise ConfigError(f"--set {key}: '{value}' is not a number.") from None
+    return out
+
+
+def _run(fn):
+    """Run a command body, printing user errors without a traceback."""
+    try:
+        return fn()
+    except EbusError as exc:
+        _console().print(f"[bold red]error:[/] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+@app.command()
+def simulate(
+    bus: BusOpt = "12m",
+    cycle: Annotated[str | None, typer.Option(help="Cycle name (see `ebus cycles`) or CSV")] = None,
+    measured: Annotated[Path | None, typer.Option(help="Measured log (CSV/Parquet) to replay")] = None,
+    hours: Annotated[float, typer.Option(help="Length of the cycle day [h]")] = 13.5,
+    mean_speed_kmh: Annotated[float | None, typer.Option(
+        help="Scale the cycle to this mean speed [km/h]")] = None,
+    ambient_degc: Annotated[float | None, typer.Option(help="Ambient for cycle days [degC]")] = None,
+    soc_start_pct: Annotated[float | None, typer.Option(help="Initial SoC [%]")] = None,
+    with_: WithOpt = None,
+    without: WithoutOpt = None,
+    set_: SetOpt = None,
+    overlay: OverlayOpt = None,
+    columns: Annotated[str | None, typer.Option(
+        help="Column map preset for --measured (configs/logs), e.g. bmw_i3_tum")] = None,
+    gaps: Annotated[str, typer.Option(help="Gaps in --measured: error, split, hold, interpolate")]
+    = "error",
+    fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
+    no_unit_check: Annotated[bool, typer.Option(help="Skip the m/s-vs-km/h and SoC-unit checks")]
+    = False,
+    dt_s: Annotated[float, typer.Option("--dt", help="Time step [s]")] = 0.1,
+    out: Annotated[Path | None, typer.Option(help="Write the trace (.parquet or .csv)")] = None,
+    plot: Annotated[Path | None, typer.Option(help="Plot speed, power, SoC, cabin (PNG)")] = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Write the summary as JSON")]
+    = None,
+):
+    """Run a bus through a cycle day or a measured log and print the energy table."""
+    _run(lambda: _simulate(bus, cycle, measured, hours, mean_speed_kmh, ambient_degc,
+                           soc_start_pct, with_, without, set_, overlay, columns, gaps, fill,
+                           not no_unit_check, dt_s, out, plot, json_path))
+
+
+def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, soc_start_pct,
+              with_, without, set_, overlay, columns, gaps, fill, check_units, dt_s, out, plot,
+              json_path):
+    from ebus_env.config import load_bus
+    from ebus_env.errors import ConfigError
+    from ebus_env.report import summary_tables, write_json
+    from ebus_env.simulate import run_profiles
+
+    console = _console()
+    if (cycle is None) == (measured is None):
+        if cycle is None and measured is None:
+            cycle = "sort2"
+        else:
+            raise ConfigError("Give either --cycle or --measured, not both.")
+    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    t0 = time.perf_counter()
+    model = bus.build(dt_s)
+    params = model.param_vector(_overrides(set_))
+    record = out is not None or plot is not None or measured is not None
+    compile_s = model.compile(record)
+    if measured is not None:
+        from ebus_env.io.measured import load_log
+
+        vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
+            if model.has_effect("vehicle_body") else None
+        log = load_log(measured, dt_s, columns=columns, gaps=gaps, fill=fill,
+                       check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
+        profiles = log.profiles
+        for line in log.report.changes:
+            console.print(f"[dim]loader:[/] {line}", highlight=False)
+        for line in log.report.warnings + log.report.ignored:
+            console.print(f"[yellow]loader:[/] {line}", highlight=False)
+    else:
+        from ebus_env.cycles import service_day
+
+        profiles = [service_day(cycle, hours, dt_s, bus.service, mean_speed_kmh, ambient_degc)]
+        for line in profiles[0].notes:
+            console.print(f"[dim]cycle:[/] {line}", highlight=False)
+    soc_start = None if soc_start_pct is None else soc_start_pct / 100.0
+    if soc_start is None and measured is None:
+        soc_start = bus.service.soc_start_pct / 100.0
+    run = run_profiles(model, profiles, params, soc_start, record)
+    summary = run.summary
+    summary["compile_or_load_s"] = compile_s
+    title = f"{bus.name} on {run.label}"
+    figures, breakdown = summary_tables(summary, title)
+    console.print(figures)
+    console.print(breakdown)
+    console.print(f"[dim]model built and loaded in {time.perf_counter() - t0 - summary['wall_time_s']:.2f} s"
+                  f" (compile/cache {compile_s:.2f} s); simulated in "
+                  f"{1e3 * summary['wall_time_s']:.1f} ms[/]", highlight=False)
+    if json_path:
+        write_json(summary, json_path)
+        console.print(f"summary -> {json_path}")
+    if out:
+        frame = run.trace_frame()
+        if out.suffix == ".csv":
+            frame.to_csv(out, index=False)
+        else:
+            frame.to_parquet(out, index=False)
+        console.print(f"trace ({len(frame)} rows x {frame.shape[1]} signals) -> {out}")
+    if plot:
+        from ebus_env.plotting import plot_trace
+
+        plot_trace(run.results[0], plot)
+        if len(run.results) > 1:
+            console.print("[yellow]plot shows the first segment only[/]")
+        console.print(f"plot -> {plot}")
+
+
+@app.command()
+def cycles():
+    """List the shipped driving cycles."""
+
+    def body():
+        from rich.table import Table
+
+        from ebus_env.cycles import CYCLES, load_cycle
+
+        table = Table(title="driving cycles (data/cycles)")
+        for col in ("name", "duration s", "distance km", "mean km/h", "max km/h", "description"):
+            table.add_column(col)
+        for name in CYCLES:
+            c = load_cycle(name)
+            table.add_row(name, f"{c.duration_s:.0f}", f"{c.distance_km:.2f}",
+                          f"{c.mean_speed_kmh:.1f}", f"{c.speed_kmh.max():.1f}", c.description)
+        _console().print(table)
+
+    _run(body)
+
+
+@app.command()
+def effects(
+    bus: Annotated[str | None, typer.Option("--bus", "-b", help="Show this bus's values")] = None,
+    with_: WithOpt = None,
+):
+    """List the effects with their parameters (default or the bus's value, unit, bounds)."""
+
+    def body():
+        from rich.table import Table
+
+        from ebus_env.config import load_bus, resolve_effect
+        from ebus_env.effects.base import registered_effects
+
+        for item in _split(with_):
+            resolve_effect(item)
+        values, in_model = {}, None
+        if bus:
+            model = load_bus(bus, with_=_split(with_)).build()
+            values = dict(zip(model.param_names, model.params, strict=True))
+            in_model = {e.name for e in model.effects}
+        table = Table(title="effects" + (f" of bus {bus}" if bus else ""), show_lines=False)
+        for col in ("effect", "role", "parameter", "value", "unit", "bounds", "meaning"):
+            table.add_column(col)
+        for name, eff in sorted(registered_effects().items(), key=lambda kv: kv[1].role):
+            if in_model is not None and name not in in_model:
+                continue
+            first = True
+            for p in eff.params or [None]:
+                if p is None:
+                    table.add_row(name, eff.role, "-", "", "", "", (eff.doc or "").split("\n")[0])
+                    continue
+                value = values.get(f"{name}.{p.name}", p.default)
+                table.add_row(name if first else "", eff.role if first else "", p.name,
+                              f"{value:g}", p.unit, f"[{p.bounds[0]:g}, {p.bounds[1]:g}]",
+                              p.description)
+                first = False
+        _console().print(table)
+
+    _run(body)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Folder for the report")] = Path("report"),
+):
+    """The main job on bundled data: simulate bus days and measured trips, write a report."""
+
+    def body():
+        from ebus_env.demo import run_demo
+
+        path = run_demo(out, console=_console())
+        _console().print(f"[bold green]report ->[/] {path}")
+
+    _run(body)
+
+
+def main():  # pragma: no cover
+    sys.exit(app())

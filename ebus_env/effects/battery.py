@@ -1,0 +1,158 @@
+"""Battery pack (internal-resistance model) and its ageing.
+
+Pack of N_s cells in series and N_p in parallel::
+
+    Q     = Q_cell N_p (1 - RCD)                               capacity [Ah]
+    OCV   = N_s OCV_cell(SoC)                                  open-circuit voltage [V]
+    R     = R_cell N_s / N_p k_conn f(SoC) exp(Ea/R_g (1/T - 1/T_ref)) (1 + k_R RCD)
+    I     = 2 P / (OCV + sqrt(OCV^2 - 4 R P))                  current for terminal power P
+    V_t   = OCV - R I
+    dSoC  = -eta I dt / (3600 Q),  eta = eta_c if I < 0 else 1
+
+(reference/physics.md 2.2 and 5.1-5.3). The current formula is the usual quadratic root written
+so it stays exact as R -> 0. P > 0 and I > 0 discharge.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ebus_env.effects.base import Call, Effect, Param, State, effect, register
+from ebus_env.effects.tables import Table, TableData, lookup1
+
+_GAS_CONSTANT_J_PER_MOL_K = 8.314
+_T_REF_K = 298.15
+
+_OCV_SOC_PCT = (0.0, 2.5, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 95.0, 97.5,
+                100.0)
+
+OCV_CELL = Table(
+    "ocv_cell_v", "V", "Cell open-circuit voltage over SoC [%] (x)",
+    presets={
+        "lfp_a123": TableData(_OCV_SOC_PCT, (
+            2.900, 2.976, 3.102, 3.172, 3.208, 3.237, 3.263, 3.270, 3.275, 3.280, 3.305, 3.315,
+            3.319, 3.433, 3.590), source="A123 LiFePO4, davidmcq137/JetiLuaDFM DFM-InsP/A123.lua"),
+        "lfp_lw_m1b": TableData(_OCV_SOC_PCT, (
+            2.010, 2.908, 3.067, 3.199, 3.239, 3.278, 3.288, 3.299, 3.310, 3.321, 3.331, 3.342,
+            3.348, 3.350, 3.598), source="Lithium Werks APR18650M1B, soorajsunil/Piecewise-Battery-OCV"),
+        "nmc_p42a": TableData(_OCV_SOC_PCT, (
+            2.506, 2.980, 3.163, 3.331, 3.475, 3.580, 3.657, 3.743, 3.839, 3.935, 4.031, 4.085,
+            4.101, 4.147, 4.193), source="Molicel INR21700-P42A, soorajsunil/Piecewise-Battery-OCV"),
+        "nmc_40t": TableData(_OCV_SOC_PCT, (
+            2.500, 3.013, 3.177, 3.348, 3.487, 3.588, 3.658, 3.740, 3.836, 3.932, 4.029, 4.090,
+            4.110, 4.151, 4.200), source="Samsung INR21700-40T, soorajsunil/Piecewise-Battery-OCV"),
+    },
+    default="lfp_a123",
+)
+
+RESISTANCE_SOC = Table(
+    "resistance_soc_factor", "1", "Factor f(SoC) on the cell resistance over SoC [%] (x)",
+    presets={"generic": TableData((0.0, 10.0, 20.0, 90.0, 100.0), (1.5, 1.2, 1.0, 1.0, 1.1),
+                                  source="reference/physics.md 5.2 [M]/[P]")},
+    default="generic",
+)
+
+BATTERY_PARAMS = (
+    Param("cells_series", 204.0, "1", (1.0, 400.0), "Cells in series N_s",
+          "200 kWh LFP at ~650 V: ~203 (physics.md 5.1)"),
+    Param("cells_parallel", 3.0, "1", (1.0, 100.0), "Cells (strings) in parallel N_p"),
+    Param("cell_capacity_ah", 100.0, "Ah", (0.5, 1000.0), "Nominal cell capacity Q_cell"),
+    Param("cell_resistance_mohm", 1.0, "mOhm", (0.05, 50.0),
+          "Cell DC resistance at 25 degC, mid SoC, R_cell", "LFP 100-300 Ah prismatic 0.3-1.0 mOhm"),
+    Param("connection_factor", 1.2, "1", (1.0, 1.6), "Busbar/contactor factor k_conn",
+          "physics.md 5.2: 1.1-1.3"),
+    Param("activation_energy_j_per_mol", 25000.0, "J/mol", (0.0, 60000.0),
+          "Arrhenius activation energy Ea of the resistance", "LFP ~25 kJ/mol, NMC ~30 kJ/mol"),
+    Param("temperature_degc", 25.0, "degC", (-30.0, 60.0),
+          "Pack temperature T (thermally managed)"),
+    Param("coulombic_efficiency", 0.998, "1", (0.95, 1.0), "Coulombic efficiency on charge eta_c",
+          "physics.md 5.3"),
+    Param("soc_min_frac", 0.0, "1", (0.0, 0.3),
+          "SoC at which the BMS cuts traction (auxiliaries still drain the pack)"),
+    Param("soc_max_frac", 1.0, "1", (0.7, 1.0), "SoC the pack is never charged past"),
+    Param("max_charge_c_rate", 3.0, "1/h", (0.1, 10.0),
+          "Largest charge current (regen or charger) in C", "LFP up to 3C (paper)"),
+    Param("max_discharge_c_rate", 5.0, "1/h", (0.1, 20.0), "Largest discharge current in C"),
+)
+
+
+def battery_state(soc_frac, capacity_factor, resistance_factor, dt_s, cells_series,
+                  cells_parallel, cell_capacity_ah, cell_resistance_mohm, connection_factor,
+                  activation_energy_j_per_mol, temperature_degc, coulombic_efficiency,
+                  soc_min_frac, soc_max_frac, max_charge_c_rate, max_discharge_c_rate,
+                  ocv_cell_v, resistance_soc_factor):
+    """OCV [V], resistance [Ohm], capacity [Ah] and the current/power limits of this step.
+
+    The charge limit also keeps the pack from passing ``soc_max_frac`` within the step; the
+    discharge limit is zero at or below ``soc_min_frac`` (the BMS cuts traction)."""
+    soc_pct = 100.0 * soc_frac
+    capacity_ah = cell_capacity_ah * cells_parallel * capacity_factor
+    ocv_v = cells_series * lookup1(ocv_cell_v, soc_pct)
+    arrhenius = math.exp(activation_energy_j_per_mol / _GAS_CONSTANT_J_PER_MOL_K
+                         * (1.0 / (temperature_degc + 273.15) - 1.0 / _T_REF_K))
+    resistance_ohm = (cell_resistance_mohm * 1e-3 * cells_series / cells_parallel
+                      * connection_factor * lookup1(resistance_soc_factor, soc_pct)
+                      * arrhenius * resistance_factor)
+    headroom_a = max(soc_max_frac - soc_frac, 0.0) * (
+        3600.0 * capacity_ah / (coulombic_efficiency * dt_s))
+    charge_a = min(max_charge_c_rate * capacity_ah, headroom_a)
+    charge_w = charge_a * (ocv_v + resistance_ohm * charge_a)
+    discharge_w = 0.0
+    if soc_frac > soc_min_frac:
+        discharge_a = max_discharge_c_rate * capacity_ah
+        if 2.0 * resistance_ohm * discharge_a > ocv_v:  # beyond the maximum-power current
+            discharge_a = 0.5 * ocv_v / resistance_ohm
+        discharge_w = discharge_a * (ocv_v - resistance_ohm * discharge_a)
+    return ocv_v, resistance_ohm, capacity_ah, charge_a, charge_w, discharge_w
+
+
+def battery_update(battery_power_w, soc_frac, ocv_v, resistance_ohm, capacity_ah, dt_s,
+                   coulombic_efficiency):
+    """Current [A], terminal voltage [V], next SoC, ohmic loss [W], coulombic loss [W] and the
+    power the pack could not deliver [W] (> 0 only beyond its maximum power OCV^2 / 4R)."""
+    disc = ocv_v * ocv_v - 4.0 * resistance_ohm * battery_power_w
+    shortfall_w = 0.0
+    if disc < 0.0:
+        disc = 0.0
+        shortfall_w = battery_power_w - ocv_v * ocv_v / (4.0 * resistance_ohm)
+    current_a = 2.0 * (battery_power_w - shortfall_w) / (ocv_v + math.sqrt(disc))
+    voltage_v = ocv_v - resistance_ohm * current_a
+    ohmic_w = resistance_ohm * current_a * current_a
+    if current_a < 0.0:
+        eta = coulombic_efficiency
+        coulombic_w = (1.0 - eta) * ocv_v * -current_a
+    else:
+        eta = 1.0
+        coulombic_w = 0.0
+    soc_next = soc_frac - eta * current_a * (dt_s / (3600.0 * capacity_ah))
+    return current_a, voltage_v, soc_next, ohmic_w, coulombic_w, shortfall_w
+
+
+rint_battery = register(Effect(
+    name="rint_battery",
+    slot="battery",
+    calls={
+        "state": Call(battery_state, ("ocv_v", "resistance_ohm", "capacity_ah",
+                                      "charge_current_max_a", "charge_power_max_w",
+                                      "discharge_power_max_w")),
+        "update": Call(battery_update, ("battery_current_a", "battery_voltage_v", "soc_frac_next",
+                                        "battery_loss_w", "coulombic_loss_w",
+                                        "battery_shortfall_w")),
+    },
+    params=BATTERY_PARAMS,
+    tables=(OCV_CELL, RESISTANCE_SOC),
+    states=(State("soc_frac", "1", "State of charge", lambda p, x: 0.9),),
+    drivers=("battery_current_a", "soc_frac"),
+    doc=__doc__,
+))
+
+
+@effect("static_rcd", slot="aging", params=[
+    Param("rcd_frac", 0.0, "1", (0.0, 0.3), "Relative capacity degradation RCD",
+          "Hasan et al. 2023, tuned parameter (< 25 %)"),
+    Param("resistance_growth", 1.5, "1", (0.0, 3.0),
+          "Resistance growth per unit RCD, k_R: R = R_0 (1 + k_R RCD)", "physics.md 5.2: 1-2"),
+])
+def static_rcd(rcd_frac, resistance_growth):
+    """Static ageing: capacity factor 1 - RCD and resistance factor 1 + k_R RCD."""
+    return 1.0 - rcd_frac, 1.0 + resistance_growth * rcd_frac

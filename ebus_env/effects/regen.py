@@ -1,0 +1,23 @@
+"""Regenerative braking: which share of the braking force the motor may take."""
+
+from __future__ import annotations
+
+from ebus_env.effects.base import Param, effect
+
+
+@effect("regen_cutoff", slot="regen", drivers=("speed_mps",), params=[
+    Param("cutoff_speed_mps", 1.5, "m/s", (0.0, 5.0),
+          "Speed below which regenerative braking is off, v_cut", "Hasan et al. 2023"),
+    Param("max_share", 1.0, "1", (0.1, 1.0),
+          "Largest share of the braking force the motor takes above v_cut (blending)",
+          "Simple bus models recover 0.4-0.5 of braking energy (physics.md 3.2)"),
+])
+def regen_cutoff(speed_mps, cutoff_speed_mps, max_share):
+    """Motor share of braking: ``max_share`` above the cutoff speed, 0 below it.
+
+    The motor's generating torque/power limits and the battery's charge acceptance cap the
+    regenerative force further; the friction brakes take the rest.
+    """
+    if speed_mps > cutoff_speed_mps:
+        return max_share
+    return 0.0

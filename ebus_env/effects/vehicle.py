@@ -1,0 +1,47 @@
+"""Vehicle body, passengers and their mass."""
+
+from __future__ import annotations
+
+import math
+
+from ebus_env.effects.base import Param, effect
+from ebus_env.units import PASSENGER_MASS_KG
+
+
+@effect("vehicle_body", slot="vehicle", params=[
+    Param("curb_mass_kg", 13000.0, "kg", (500.0, 40000.0), "Curb mass m_0, driver included",
+          "12 m: ADVISOR RTS06/Orion VI 12.2-12.6 t, eCitaro 13.5 t (reference/physics.md 3.2)"),
+    Param("rotational_mass_factor", 1.05, "1", (1.0, 1.2),
+          "Rotating-mass factor delta: effective inertia m_eff = delta * m", "physics.md 3.2 [M]"),
+    Param("max_speed_kmh", 80.0, "km/h", (10.0, 250.0), "Maximum vehicle speed v_max",
+          "Urban bus governor setting"),
+    Param("max_brake_decel_mps2", 5.0, "m/s^2", (1.0, 10.0),
+          "Largest deceleration the service brakes give", "Typical bus service brake"),
+])
+def vehicle_body(curb_mass_kg, rotational_mass_factor, max_speed_kmh, max_brake_decel_mps2):
+    """Rigid body of the bus: curb mass, rotating-mass factor and speed/brake limits."""
+    return curb_mass_kg, rotational_mass_factor, max_speed_kmh / 3.6, max_brake_decel_mps2
+
+
+@effect("passenger_load", slot="passengers", params=[
+    Param("load_frac", 0.5, "1", (0.0, 1.0),
+          "Passenger load as a fraction of max_passengers (paper's categories: driver only 0, "
+          "half load 0.5, full load 1)", "Hasan et al. 2023, tuned parameter"),
+    Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max",
+          "12 m: 70-95 (Solaris Urbino 12: 94); 18 m: 120-150"),
+])
+def passenger_load(passenger_count, load_frac, max_passengers):
+    """Passengers on board: the measured count where the profile gives one, else
+    ``n = load_frac * n_max``."""
+    if math.isnan(passenger_count):
+        return load_frac * max_passengers
+    return passenger_count
+
+
+@effect("passenger_mass", sink="mass_kg", drivers=("passengers",), params=[
+    Param("passenger_mass_kg", PASSENGER_MASS_KG, "kg", (50.0, 100.0), "Mass per passenger m_p",
+          "UN ECE R107 design mass"),
+])
+def passenger_mass(passengers, passenger_mass_kg):
+    """Mass of the passengers: m_pax = n * m_p [kg]."""
+    return passengers * passenger_mass_kg

@@ -1,0 +1,453 @@
+"""Measured logs: read, check, and bring onto the simulation grid.
+
+A log has one row per sample and canonical columns with units in their names:
+
+=====================  ========  ====================================================
+column                 required  meaning
+=====================  ========  ====================================================
+``time_s``             yes*      seconds (or ``timestamp``: date-time or seconds)
+``speed_kmh``          yes*      vehicle speed (or ``speed_mps``)
+``soc_pct``                      battery state of charge (or ``soc_frac``)
+``ambient_degc``                 ambient temperature
+``grade_pct``                    road grade in % (or ``grade_frac``)
+``altitude_m``                   altitude; smoothed over distance into grade
+``charging``                     1 while on a charger, else 0
+``charger_kw``                   rated power of that charger
+``passengers``                   passengers on board
+``door_open``                    1 while doors are open
+``battery_current_a``            pack current, > 0 discharging
+``battery_voltage_v``            pack voltage
+=====================  ========  ====================================================
+
+Files named otherwise are mapped with ``columns`` (``{"Velocity [km/h]": "speed_kmh"}`` or
+``{"I [A]": {"column": "battery_current_a", "scale": -1}}``) or a preset in ``configs/logs``.
+Other numeric columns are kept, resampled, as measured signals.
+
+Nothing is silently dropped or repaired: a problem raises :class:`~ebus_env.errors.LogError`
+with the file, column, rows and the fix, and every change the loader makes (resampling,
+smoothing, filling, splitting) is listed in :attr:`LoadReport.changes`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ebus_env.config import ROOT, find_config, read_yaml
+from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
+from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
+from ebus_env.profile import Profile
+from ebus_env.resample import grid, resample
+
+CANONICAL = {
+    "time_s", "timestamp", "speed_kmh", "speed_mps", "soc_pct", "soc_frac", "ambient_degc",
+    "grade_pct", "grade_frac", "altitude_m", "charging", "charger_kw", "passengers", "door_open",
+    "solar_w_per_m2", "battery_current_a", "battery_voltage_v",
+}
+FLAGS = ("charging", "door_open")
+GAP_POLICIES = ("error", "split", "hold", "interpolate")
+FILL_POLICIES = ("error", "interpolate")
+
+
+@dataclass
+class LoadReport:
+    """What the loader found and did."""
+
+    path: str
+    rows: int = 0
+    sample_period_s: float = float("nan")
+    columns: dict[str, str] = field(default_factory=dict)  # canonical <- source column
+    changes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    ignored: list[str] = field(default_factory=list)
+
+
+@dataclass
+class MeasuredLog:
+    """A loaded log: one profile per segment (several only when gaps were split)."""
+
+    profiles: list[Profile]
+    report: LoadReport
+
+    @property
+    def profile(self) -> Profile:
+        if len(self.profiles) != 1:
+            raise LogError(f"The log was split into {len(self.profiles)} segments at its gaps; "
+                           "use .profiles", path=self.report.path)
+        return self.profiles[0]
+
+
+def column_preset(name: str | Path) -> dict:
+    """Column map from a preset in ``configs/logs`` (by name or path)."""
+    data = read_yaml(find_config(name, kind="logs"))
+    if "columns" not in data:
+        raise ConfigError(f"Column preset {name} needs a 'columns' mapping.")
+    return dict(data["columns"])
+
+
+def _read(path: Path) -> pd.DataFrame:
+    if not path.exists():
+        raise LogError("The file does not exist", path=path, fix="check the path")
+    if path.stat().st_size == 0:
+        raise LogError("The file is empty", path=path, fix="give a log with a header and rows")
+    try:
+        if path.suffix.lower() in (".parquet", ".pq"):
+            frame = pd.read_parquet(path)
+        else:
+            frame = pd.read_csv(path, dtype=str, keep_default_na=False,
+                                encoding_errors="replace")
+            if frame.shape[1] == 1 and ";" in frame.columns[0]:
+                frame = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False,
+                                    encoding_errors="replace")
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, OSError, ValueError) as exc:
+        raise LogError(f"The file cannot be read as a table: {exc}", path=path,
+                       fix="give a CSV (comma or semicolon separated) or Parquet file") from None
+    if frame.empty:
+        raise LogError("The file has a header but no rows", path=path, fix="give a log with data")
+    return frame
+
+
+def _apply_columns(frame: pd.DataFrame, columns: dict | None, path: Path,
+                   report: LoadReport) -> pd.DataFrame:
+    renamed = {}
+    for source, target in (columns or {}).items():
+        scale = 1.0
+        if isinstance(target, dict):
+            scale = float(target.get("scale", 1.0))
+            target = target["column"]
+        if source not in frame.columns:
+            raise LogError(f"The column map names '{source}', which the file lacks."
+                           f"{did_you_mean(source, frame.columns)}", path=path,
+                           fix=f"columns present: {', '.join(map(str, frame.columns))}")
+        values = frame[source]
+        if scale != 1.0:
+            values = pd.to_numeric(values.replace("", np.nan), errors="coerce") * scale
+            report.changes.append(f"column '{source}' multiplied by {scale:g} as '{target}'")
+        renamed[target] = values
+        report.columns[target] = source
+    out = frame.drop(columns=[c for c in (columns or {}) if c in frame.columns])
+    for target, values in renamed.items():
+        if target in out.columns:
+            raise LogError(f"Column '{target}' exists and the column map also maps to it",
+                           path=path, column=target, fix="map only one column onto it")
+        out[target] = values
+    for name in out.columns:
+        report.columns.setdefault(name, name)
+    return out
+
+
+def _numeric(frame: pd.DataFrame, name: str, path: Path) -> np.ndarray:
+    """A column as floats; text that is not a number is an error (empty cells become NaN)."""
+    raw = frame[name]
+    if raw.dtype.kind in "fiub":
+        return raw.to_numpy(dtype=float)
+    text = raw.astype(str).str.strip()
+    empty = text.isin(["", "nan", "NaN", "NA", "null", "None"])
+    values = pd.to_numeric(text.where(~empty), errors="coerce")
+    bad = np.flatnonzero(values.isna().to_numpy() & ~empty.to_numpy())
+    if bad.size:
+        examples = ", ".join(repr(text.iloc[i]) for i in bad[:3])
+        raise LogError(f"Non-numeric values ({examples})", path=path, column=name, rows=bad,
+                       fix="clean those cells, or leave them empty to mark missing values")
+    return values.to_numpy(dtype=float)
+
+
+def _nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
+    nan = np.isnan(values)
+    if not nan.any():
+        return []
+    edges = np.diff(np.concatenate([[0], nan.astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True))
+
+
+def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarray, float]:
+    """Seconds from the first row, and the time of day of the first row [h]."""
+    start_h = 0.0
+    if "time_s" in frame.columns:
+        t = _numeric(frame, "time_s", path)
+    elif "timestamp" in frame.columns:
+        text = frame["timestamp"].astype(str)
+        numeric = pd.to_numeric(text, errors="coerce")
+        if numeric.notna().all():
+            t = numeric.to_numpy(float)
+        else:
+            stamps = pd.to_datetime(text, errors="coerce")
+            bad = np.flatnonzero(stamps.isna().to_numpy())
+            if bad.size:
+                raise LogError("Timestamps that cannot be read", path=path, column="timestamp",
+                               rows=bad, fix="use ISO 8601 date-times or seconds")
+            first = stamps.iloc[0]
+            start_h = first.hour + first.minute / 60 + first.second / 3600
+            t = ((stamps - first).dt.total_seconds()).to_numpy(float)
+    else:
+        raise LogError("No time column" + did_you_mean("time_s", frame.columns), path=path,
+                       fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
+    nan = np.flatnonzero(np.isnan(t))
+    if nan.size:
+        raise LogError("Missing times", path=path, column="time_s", rows=nan,
+                       fix="every row needs a time")
+    step = np.diff(t)
+    duplicated = np.flatnonzero(step == 0) + 1
+    if duplicated.size:
+        raise LogError("Duplicated times", path=path, column="time_s", rows=duplicated,
+                       fix="remove or average the duplicated rows")
+    backwards = np.flatnonzero(step < 0) + 1
+    if backwards.size:
+        raise LogError("Time goes backwards", path=path, column="time_s", rows=backwards,
+                       fix="sort the log by time, or split it into files at the jumps")
+    return t - t[0], start_h
+
+
+def _fill_nan(name: str, values: np.ndarray, t: np.ndarray, path: Path, fill: str,
+              report: LoadReport, flag: bool = False) -> np.ndarray:
+    runs = _nan_runs(values)
+    if not runs:
+        return values
+    rows = [r for a, b in runs for r in range(a, b + 1)]
+    if np.isnan(values).all():
+        raise LogError("The column has no values", path=path, column=name,
+                       fix="drop the column or fill it")
+    if fill == "error":
+        raise LogError(f"Missing values in {len(runs)} run(s)", path=path, column=name, rows=rows,
+                       fix="fill them, or pass fill='interpolate' (--fill interpolate) to "
+                           "interpolate (hold for flags)")
+    ok = ~np.isnan(values)
+    if flag:
+        filled = resample(t[ok], values[ok], t, 1.0, "hold")
+    else:
+        filled = np.interp(t, t[ok], values[ok])
+    report.changes.append(f"'{name}': {len(rows)} missing values in {len(runs)} run(s) "
+                          f"(rows {format_rows(rows)}) filled by "
+                          f"{'holding' if flag else 'linear interpolation'}")
+    return filled
+
+
+def _check_units(frame_values: dict, t: np.ndarray, path: Path, check: bool) -> None:
+    speed = frame_values.get("speed_kmh")
+    if check and speed is not None and t[-1] > 120:
+        moving = speed > 1.0
+        if moving.sum() > 10 and np.nanmax(speed) < 25.0:
+            accel = np.diff(speed / 3.6) / np.diff(t)
+            if np.nanpercentile(accel[accel > 0], 95) < 0.35:
+                raise LogError(
+                    f"Speeds look like m/s, not km/h (max {np.nanmax(speed):.1f}, accelerations "
+                    "implausibly small for km/h)", path=path, column="speed_kmh",
+                    fix="rename the column 'speed_mps' if it holds m/s (or pass "
+                        "check_units=False / --no-unit-check if these really are km/h)")
+    soc = frame_values.get("soc_pct")
+    if check and soc is not None and np.nanmax(soc) <= 1.0:
+        raise LogError(f"SoC looks like a fraction, not percent (max {np.nanmax(soc):g})",
+                       path=path, column="soc_pct",
+                       fix="rename the column 'soc_frac' if it holds 0-1 values")
+
+
+def _check_range(name: str, values: np.ndarray, low: float, high: float, path: Path,
+                 fix: str) -> None:
+    bad = np.flatnonzero((values < low) | (values > high))
+    if bad.size:
+        raise LogError(f"Values outside [{low:g}, {high:g}] (e.g. {values[bad[0]]:g})",
+                       path=path, column=name, rows=bad, fix=fix)
+
+
+def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = None,
+             gaps: str = "error", max_gap_s: float | None = None, fill: str = "error",
+             check_units: bool = True, grade_window_m: float = DEFAULT_WINDOW_M,
+             max_speed_kmh: float | None = None, max_accel_mps2: float | None = None,
+             name: str | None = None) -> MeasuredLog:
+    """Read a measured log and bring it onto the simulation grid.
+
+    Parameters
+    ----------
+    path
+        CSV (comma or semicolon separated) or Parquet file.
+    dt_s
+        Simulation time step [s]; 0.5-20 Hz logs are up- or down-sampled to it.
+    columns
+        Column map ``{source: canonical}`` or the name/path of a preset in ``configs/logs``.
+    gaps
+        What to do with time gaps longer than ``max_gap_s``: ``error`` (default), ``split``
+        (separate segments, each simulated from its own measured SoC), ``hold`` (hold the last
+        sample) or ``interpolate``.
+    max_gap_s
+        Longest step that is not a gap (default: the larger of 10 s and 5 sample periods).
+    fill
+        Missing values (NaN runs): ``error`` (default) or ``interpolate``.
+    check_units
+        Reject columns whose values look like the wrong unit (m/s as km/h, SoC 0-1 as %).
+    grade_window_m
+        Smoothing window when grade comes from altitude [m].
+    max_speed_kmh, max_accel_mps2
+        Vehicle limits; samples beyond them are reported (the model cannot follow them).
+    """
+    if gaps not in GAP_POLICIES:
+        raise ConfigError(f"gaps must be one of {GAP_POLICIES}, got '{gaps}'.")
+    if fill not in FILL_POLICIES:
+        raise ConfigError(f"fill must be one of {FILL_POLICIES}, got '{fill}'.")
+    path = Path(path)
+    report = LoadReport(str(path))
+    if isinstance(columns, (str, Path)):
+        columns = column_preset(columns)
+    frame = _apply_columns(_read(path), columns, path, report)
+    report.rows = len(frame)
+    if len(frame) < 2:
+        raise LogError("The log needs at least two rows", path=path)
+    t, start_h = _time(frame, path, report)
+
+    speed_col = "speed_kmh" if "speed_kmh" in frame.columns else (
+        "speed_mps" if "speed_mps" in frame.columns else None)
+    if speed_col is None:
+        raise LogError("No speed column" + did_you_mean("speed_kmh", frame.columns), path=path,
+                       fix="name it 'speed_kmh' or 'speed_mps', or map it with columns=")
+    values: dict[str, np.ndarray] = {}
+    for name_ in frame.columns:
+        if name_ in ("time_s", "timestamp"):
+            continue
+        if name_ in CANONICAL:
+            values[name_] = _numeric(frame, name_, path)
+        else:
+            try:
+                values[name_] = _numeric(frame, name_, path)
+            except LogError:
+                report.ignored.append(f"column '{name_}' is not numeric and was not used")
+    for flag in FLAGS:
+        if flag in values:
+            v = values[flag]
+            bad = np.flatnonzero(~np.isnan(v) & ~np.isin(v, (0.0, 1.0)))
+            if bad.size:
+                raise LogError("Flag values other than 0 and 1", path=path, column=flag,
+                               rows=bad, fix="use 1 for yes and 0 for no")
+    for name_ in list(values):
+        if np.isnan(values[name_]).all() and name_ not in CANONICAL:
+            report.ignored.append(f"column '{name_}' is empty and was not used")
+            del values[name_]
+            continue
+        values[name_] = _fill_nan(name_, values[name_], t, path, fill, report,
+                                  flag=name_ in FLAGS + ("passengers", "charger_kw"))
+    _check_units(values, t, path, check_units)
+    speed_mps = values[speed_col] / 3.6 if speed_col == "speed_kmh" else values[speed_col]
+    _check_range(speed_col, values[speed_col], 0.0, 400.0, path, "speeds must be >= 0 and "
+                 "plausible")
+    if "soc_pct" in values:
+        _check_range("soc_pct", values["soc_pct"], 0.0, 100.0, path, "SoC in percent: 0-100")
+    if "soc_frac" in values:
+        _check_range("soc_frac", values["soc_frac"], 0.0, 1.0, path, "SoC as a fraction: 0-1")
+
+    period = float(np.median(np.diff(t)))
+    report.sample_period_s = period
+    limit = max(10.0, 5.0 * period) if max_gap_s is None else max_gap_s
+    gap_rows = np.flatnonzero(np.diff(t) > limit)
+    segments = [(0, len(t))]
+    if gap_rows.size:
+        listing = ", ".join(f"{t[i]:.1f}-{t[i + 1]:.1f} s" for i in gap_rows[:5])
+        if gaps == "error":
+            raise LogError(f"{gap_rows.size} time gap(s) longer than {limit:g} s ({listing})",
+                           path=path, column="time_s", rows=gap_rows + 1,
+                           fix="choose how to simulate them: gaps='split', 'hold' or "
+                               "'interpolate' (--gaps ...), or a larger max_gap_s")
+        if gaps == "split":
+            edges = [0] + list(gap_rows + 1) + [len(t)]
+            segments = list(zip(edges[:-1], edges[1:], strict=True))
+            report.changes.append(f"split at {gap_rows.size} gap(s) ({listing}) into "
+                                  f"{len(segments)} segments")
+        else:
+            how = "holding the last sample" if gaps == "hold" else "linear interpolation"
+            report.changes.append(f"{gap_rows.size} gap(s) ({listing}) bridged by {how}")
+
+    profiles = []
+    for a, b in segments:
+        profiles.append(_segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h,
+                                         gaps, limit, grade_window_m, report, path, name))
+    if len(profiles) > 1:
+        short = [i for i, p in enumerate(profiles) if p.n_steps < 2]
+        if short:
+            raise LogError(f"Segments {short} are too short to simulate", path=path,
+                           fix="use gaps='hold' or 'interpolate' instead of 'split'")
+    _check_limits(profiles, max_speed_kmh, max_accel_mps2, report)
+    for p in profiles:
+        p.notes = list(report.changes)
+    return MeasuredLog(profiles, report)
+
+
+def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps, limit,
+                     grade_window_m, report, path, name) -> Profile:
+    ts = t[a:b]
+    g = grid(ts[0], ts[-1], dt_s)
+    period = float(np.median(np.diff(ts))) if b - a > 1 else dt_s
+    kind = "mean" if period < dt_s * 0.999 else "linear"
+    if gaps == "hold":
+        kind_cont = "hold"
+    else:
+        kind_cont = kind
+    if a == 0 and abs(period - dt_s) > 1e-9:
+        how = "window means" if kind == "mean" else "linear interpolation"
+        held = "; holding across gaps" if gaps == "hold" else ""
+        report.changes.append(f"resampled from {period:g} s to {dt_s:g} s ({how}{held})")
+
+    def rs(name_, data, flag=False):
+        return resample(ts, data[a:b], g, dt_s, "hold" if flag else kind_cont)
+
+    channels = {"speed_ref_mps": np.maximum(rs(speed_col, speed_mps), 0.0)}
+    if "grade_frac" in values:
+        channels["grade_frac"] = rs("grade_frac", values["grade_frac"])
+    elif "grade_pct" in values:
+        channels["grade_frac"] = rs("grade_pct", values["grade_pct"] / 100.0)
+    elif "altitude_m" in values:
+        dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed_mps[a + 1:b] + speed_mps[a:b - 1])
+                                                * np.diff(ts))])
+        grade, clipped = grade_from_altitude(dist, values["altitude_m"][a:b], grade_window_m)
+        channels["grade_frac"] = rs("grade_frac", grade)
+        if a == 0:
+            report.changes.append(f"grade from 'altitude_m', smoothed over {grade_window_m:g} m "
+                                  f"of distance" + (f"; {clipped} samples clipped at +-15 %"
+                                                    if clipped else ""))
+    if "ambient_degc" in values:
+        channels["ambient_degc"] = rs("ambient_degc", values["ambient_degc"])
+    if "passengers" in values:
+        channels["passenger_count"] = rs("passengers", values["passengers"], flag=True)
+    if "charging" in values:
+        channels["charger_connected"] = rs("charging", values["charging"], flag=True)
+    if "charger_kw" in values:
+        channels["charger_rating_w"] = rs("charger_kw", values["charger_kw"] * 1e3, flag=True)
+    if "door_open" in values:
+        channels["door_open"] = rs("door_open", values["door_open"], flag=True)
+    if "solar_w_per_m2" in values:
+        channels["solar_w_per_m2"] = rs("solar_w_per_m2", values["solar_w_per_m2"])
+    measured = {}
+    if "soc_pct" in values:
+        measured["soc_frac"] = resample(ts, values["soc_pct"][a:b] / 100.0, g, dt_s, "linear")
+    elif "soc_frac" in values:
+        measured["soc_frac"] = resample(ts, values["soc_frac"][a:b], g, dt_s, "linear")
+    used = {speed_col, "grade_frac", "grade_pct", "ambient_degc", "passengers", "charging",
+            "charger_kw", "door_open", "solar_w_per_m2", "soc_pct", "soc_frac"}
+    for name_, data in values.items():
+        if name_ not in used:
+            measured[name_] = rs(name_, data)
+    label = name or Path(path).stem
+    segment_start_h = (start_h + ts[0] / 3600.0) % 24.0
+    return Profile(channels, dt_s, label, segment_start_h, measured)
+
+
+def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:
+    for p in profiles:
+        v = p.channels["speed_ref_mps"]
+        if max_speed_kmh is not None:
+            over = np.flatnonzero(v * 3.6 > max_speed_kmh + 1e-9)
+            if over.size:
+                report.warnings.append(
+                    f"{over.size} samples ({over.size * p.dt_s:.0f} s) above the vehicle's top "
+                    f"speed {max_speed_kmh:g} km/h (max {3.6 * v.max():.1f} km/h): the model "
+                    "drives at its top speed there and falls behind")
+        if max_accel_mps2 is not None:
+            a = np.abs(np.diff(v)) / p.dt_s
+            over = np.flatnonzero(a > max_accel_mps2)
+            if over.size:
+                report.warnings.append(
+                    f"{over.size} steps with |acceleration| above {max_accel_mps2:g} m/s^2 "
+                    f"(max {a.max():.2f} m/s^2): the model cannot follow them exactly")
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in (ROOT / "configs" / "logs").glob("*.yaml"))

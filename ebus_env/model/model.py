@@ -1,0 +1,436 @@
+"""A built model: chosen effects, parameter values and the compiled step loop.
+
+Build one with :func:`build_model` (or from a bus config, :func:`ebus_env.config.load_bus`), then::
+
+    result = model.simulate(profile, soc_start=0.95)        # one bus, with a 10 Hz trace
+    batch = model.simulate_batch(profile, params_matrix)    # N parameter sets at once
+    model.run(params, states, inputs, ...)                  # N buses, k steps, from a saved state
+
+All three go through the same compiled kernel (:mod:`ebus_env.model.codegen`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ebus_env.effects.base import Effect, Param, get_effect
+from ebus_env.errors import CompositionError, ConfigError, unknown_name
+from ebus_env.model import codegen
+from ebus_env.model.signals import SINKS, SLOTS
+from ebus_env.profile import Profile
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def default_threads() -> int:
+    """Threads for batched runs: ``$EBUS_THREADS`` or the number of CPUs."""
+    return max(1, int(os.environ.get("EBUS_THREADS", os.cpu_count() or 1)))
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=default_threads(), thread_name_prefix="ebus")
+    return _POOL
+
+
+def _resolve(item: str | Effect) -> Effect:
+    return item if isinstance(item, Effect) else get_effect(item)
+
+
+class Model:
+    """A compiled Lo-Fi bus model (use :func:`build_model` to make one)."""
+
+    def __init__(self, composition: codegen.Composition, values: Mapping[str, float],
+                 bounds: Mapping[str, tuple[float, float]], dt_s: float, name: str = ""):
+        self.composition = composition
+        self.layout = codegen.generate(composition)
+        self.dt_s = float(dt_s)
+        self.name = name
+        self._effects = {e.name: e for e in composition.effects}
+        self.param_names = [f"{e}.{p}" for e, p in self.layout.params]
+        self._param_index = {n: i for i, n in enumerate(self.param_names)}
+        self._declared: dict[str, Param] = {
+            f"{e}.{p}": self._effects[e].param(p) for e, p in self.layout.params}
+        self.bounds = np.array([bounds.get(n, self._declared[n].bounds) for n in self.param_names],
+                               dtype=float).reshape(-1, 2)
+        self.params = np.array([values.get(n, self._declared[n].default) for n in self.param_names],
+                               dtype=float)
+        self._check_in_bounds(self.params, "the model's configured value")
+        self._kernel = None
+        self._python_kernel = None
+
+    # -- description ------------------------------------------------------------------------
+    @property
+    def effects(self) -> list[Effect]:
+        return self.composition.effects
+
+    @property
+    def input_names(self) -> list[str]:
+        return self.layout.inputs
+
+    @property
+    def state_names(self) -> list[str]:
+        return self.layout.states
+
+    @property
+    def trace_names(self) -> list[str]:
+        return self.layout.trace
+
+    @property
+    def accumulator_names(self) -> list[str]:
+        return [n for n, _ in self.layout.accumulators]
+
+    def has_effect(self, name: str) -> bool:
+        return name in self._effects
+
+    def param_info(self, name: str) -> Param:
+        """Declaration of a parameter by qualified name (``effect.param``)."""
+        if name not in self._declared:
+            raise unknown_name("parameter", name, self.param_names)
+        return self._declared[name]
+
+    def param_index(self, name: str) -> int:
+        if name not in self._param_index:
+            raise unknown_name("parameter", name, self.param_names)
+        return self._param_index[name]
+
+    def describe(self) -> str:
+        lines = [f"model {self.name or '(unnamed)'}: dt = {self.dt_s} s"]
+        for slot, eff in self.composition.slots.items():
+            lines.append(f"  slot {slot:13s} {eff.name if eff else 'none'}")
+        for sink, effs in self.composition.contributions.items():
+            if effs:
+                lines.append(f"  sink {sink:13s} {', '.join(e.name for e in effs)}")
+        return "\n".join(lines)
+
+    # -- parameters -------------------------------------------------------------------------
+    def _check_in_bounds(self, values: np.ndarray, what: str) -> None:
+        low, high = self.bounds[:, 0], self.bounds[:, 1]
+        bad = np.flatnonzero(~((values >= low) & (values <= high)))
+        if bad.size:
+            i = bad[0]
+            raise ConfigError(
+                f"Parameter '{self.param_names[i]}' = {values[i]} ({what}) lies outside its "
+                f"bounds [{low[i]}, {high[i]}] {self._declared[self.param_names[i]].unit}."
+            )
+
+    def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+        """The model's parameter values with ``overrides`` (qualified names) applied."""
+        vec = self.params.copy()
+        for name, value in (overrides or {}).items():
+            vec[self.param_index(name)] = float(value)
+        self._check_in_bounds(vec, "override")
+        return vec
+
+    def param_matrix(self, rows: Sequence[Mapping[str, float]] | np.ndarray) -> np.ndarray:
+        """(N, n_params) matrix from a list of override mappings, or a checked copy of one."""
+        if isinstance(rows, np.ndarray):
+            matrix = np.array(rows, dtype=float, ndmin=2)
+            if matrix.shape[1] != len(self.param_names):
+                raise ValueError(
+                    f"Parameter matrix has {matrix.shape[1]} columns; the model has "
+                    f"{len(self.param_names)} parameters (see model.param_names).")
+            for row in matrix:
+                self._check_in_bounds(row, "batch row")
+            return matrix
+        return np.array([self.param_vector(r) for r in rows], dtype=float)
+
+    # -- inputs and states ------------------------------------------------------------------
+    def input_array(self, profile: Profile) -> np.ndarray:
+        """(n_steps, n_inputs) input array of a profile, channels in ``input_names`` order."""
+        if abs(profile.dt_s - self.dt_s) > 1e-12:
+            raise ConfigError(
+                f"Profile '{profile.name}' is on a {profile.dt_s} s grid but the model steps "
+                f"{self.dt_s} s; build the profile with dt_s={self.dt_s}.")
+        columns = [profile.channel(name) for name in self.input_names]
+        array = np.column_stack(columns).astype(float)
+        if not np.all(np.isfinite(profile.channels["speed_ref_mps"])):
+            raise ConfigError(f"Profile '{profile.name}': reference speed has NaN values.")
+        return np.ascontiguousarray(array)
+
+    def initial_state(self, params: np.ndarray, first_inputs: Mapping[str, float],
+                      soc_start: float | None = None, **overrides: float) -> np.ndarray:
+        """State vector at the start of a run.
+
+        Speed starts at the reference speed, distances at 0, effect states at their declared
+        initial values (e.g. the cabin preconditioned to its setpoint); ``soc_start`` [0-1] and
+        any ``state_name=value`` override them.
+        """
+        own = {}
+        for (effect, name), value in zip(self.layout.params, params, strict=True):
+            own.setdefault(effect, {})[name] = float(value)
+        values = {"speed_mps": float(first_inputs.get("speed_ref_mps", 0.0)),
+                  "distance_m": 0.0, "distance_ref_m": 0.0}
+        for eff in self.effects:
+            for state in eff.states:
+                values[state.name] = float(state.initial(own.get(eff.name, {}), first_inputs))
+        if soc_start is not None:
+            overrides["soc_frac"] = soc_start
+        for name, value in overrides.items():
+            if name not in values:
+                raise unknown_name("state", name, values)
+            values[name] = float(value)
+        return np.array([values[n] for n in self.state_names], dtype=float)
+
+    def new_accumulators(self, n_bus: int) -> np.ndarray:
+        """Zeroed accumulators (sums 0, maxima -inf, minima +inf) for ``n_bus`` buses."""
+        start = {"sum": 0.0, "max": -math.inf, "min": math.inf}
+        row = [start[mode] for _, mode in self.layout.accumulators]
+        return np.tile(np.array(row, dtype=float), (n_bus, 1))
+
+    # -- running ----------------------------------------------------------------------------
+    def kernel(self, record: bool = False):
+        """The compiled loop, plain or recording (compiled, or loaded from the disk cache, on
+        first call)."""
+        if self._kernel is None:
+            self._kernel = codegen.compile_kernel(self.composition, self.layout)
+        return self._kernel.run_record_compiled if record else self._kernel.run_compiled
+
+    def compile(self, record: bool = False) -> float:
+        """Compile now (or load from the disk cache); returns the seconds it took."""
+        t0 = time.perf_counter()
+        n_trace = len(self.trace_names)
+        self.run(self.params[None, :], self.initial_state(self.params, {})[None, :],
+                 np.zeros((1, 2, len(self.input_names))), n_steps=1,
+                 record_every=1 if record else 0,
+                 record_out=np.zeros((1, 1, n_trace), np.float32) if record else None)
+        return time.perf_counter() - t0
+
+    def run(self, params: np.ndarray, states: np.ndarray, inputs: np.ndarray,
+            input_set: np.ndarray | None = None, step0: np.ndarray | None = None,
+            n_steps: int | None = None, record_every: int = 0,
+            record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
+            acc: np.ndarray | None = None, threads: int | None = None,
+            python: bool = False) -> np.ndarray:
+        """Advance N buses by ``n_steps`` from ``states`` (updated in place).
+
+        Parameters
+        ----------
+        params : (N, n_params)
+        states : (N, n_states)
+        inputs : (n_rows, n_inputs) shared by all buses, or (n_sets, n_rows, n_inputs)
+        input_set : (N,) which input set each bus reads (default: 0)
+        step0 : (N,) first input row of each bus (default: 0)
+        n_steps : steps to advance (default: all rows after ``step0``)
+        record_every, record_sel, record_out : trace recording (see codegen)
+        acc : (N, n_acc) accumulators to add to (default: new ones)
+        threads : split the buses over this many threads (default: all CPUs for N >= 4)
+        python : run the uncompiled Python version of the same code
+
+        Returns
+        -------
+        acc : (N, n_acc)
+        """
+        n_bus = params.shape[0]
+        inputs = inputs[None] if inputs.ndim == 2 else inputs
+        input_set = np.zeros(n_bus, np.int64) if input_set is None else np.asarray(input_set, np.int64)
+        step0 = np.zeros(n_bus, np.int64) if step0 is None else np.asarray(step0, np.int64)
+        if n_steps is None:
+            n_steps = int(inputs.shape[1] - step0.max())
+        if np.any(step0 + n_steps > inputs.shape[1]) or np.any(step0 < 0):
+            raise ValueError(f"Rows step0..step0+{n_steps} run past the {inputs.shape[1]} input rows.")
+        if states.shape != (n_bus, len(self.state_names)):
+            raise ValueError(f"states must have shape ({n_bus}, {len(self.state_names)}).")
+        if inputs.shape[2] != len(self.input_names):
+            raise ValueError(f"inputs must have {len(self.input_names)} channels: {self.input_names}.")
+        if acc is None:
+            acc = self.new_accumulators(n_bus)
+        if record_sel is None:
+            record_sel = np.arange(len(self.trace_names), dtype=np.int64)
+        if record_out is None:
+            record_out = np.zeros((n_bus, 0, len(record_sel)), np.float32)
+        if record_every > 0 and record_out.shape[1] < -(-n_steps // record_every):
+            raise ValueError("record_out has too few rows for n_steps / record_every.")
+        params = np.ascontiguousarray(params, dtype=float)
+        args = (params, states, inputs, input_set, step0, int(n_steps), self.dt_s,
+                int(record_every), np.asarray(record_sel, np.int64), record_out, acc)
+        record = record_every > 0
+        if python:
+            if self._python_kernel is None:
+                self._python_kernel = codegen.python_kernel(self.composition, self.layout)
+            self._python_kernel[record](*args, 0, n_bus)
+            return acc
+        kernel = self.kernel(record)
+        threads = default_threads() if threads is None else max(1, threads)
+        threads = min(threads, n_bus) if n_bus >= 4 else 1
+        if threads == 1:
+            kernel(*args, 0, n_bus)
+        else:
+            edges = np.linspace(0, n_bus, threads + 1).astype(int)
+            futures = [_pool().submit(kernel, *args, lo, hi)
+                       for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+            for f in futures:
+                f.result()
+        return acc
+
+    def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
+        return dict(zip(self.input_names, inputs[0], strict=True))
+
+    def simulate(self, profile: Profile, params: Mapping[str, float] | np.ndarray | None = None,
+                 soc_start: float | None = None, record: bool = True, record_every: int = 1,
+                 python: bool = False, **initial: float):
+        """Run one bus through a profile.
+
+        Parameters
+        ----------
+        profile
+            The inputs, on this model's time step.
+        params
+            Overrides by qualified name, or a full parameter vector.
+        soc_start
+            Initial SoC [0-1]; default: the first measured SoC of the profile, else 0.9.
+        record
+            Keep the trace of every signal (every ``record_every`` steps).
+        initial
+            Other initial states by name (``cabin_temp_degc=5.0``).
+        """
+        from ebus_env.model.results import SimulationResult
+
+        vec = params if isinstance(params, np.ndarray) else self.param_vector(params)
+        inputs = self.input_array(profile)
+        if soc_start is None:
+            soc_start = _first_measured_soc(profile)
+        state = self.initial_state(vec, self._first_inputs(inputs), soc_start, **initial)
+        states = state[None, :].copy()
+        n = inputs.shape[0]
+        record_out = None
+        if record:
+            record_out = np.zeros((1, -(-n // record_every), len(self.trace_names)), np.float32)
+        t0 = time.perf_counter()
+        acc = self.run(vec[None, :], states, inputs, record_every=record_every if record else 0,
+                       record_out=record_out, python=python)
+        wall = time.perf_counter() - t0
+        trace = record_out[0] if record else None
+        return SimulationResult(self, profile, vec, state, states[0], acc[0], trace,
+                                record_every, wall)
+
+    def simulate_batch(self, profile: Profile, params, soc_start: float | None = None,
+                       record: Sequence[str] = (), record_every: int = 10,
+                       threads: int | None = None):
+        """Run N parameter sets through the same profile in one batched call.
+
+        ``params`` is an (N, n_params) matrix or a list of override mappings. ``record`` names
+        trace signals to keep (every ``record_every`` steps), e.g. ``["soc_frac"]``.
+        """
+        from ebus_env.model.results import BatchResult
+
+        matrix = self.param_matrix(params)
+        inputs = self.input_array(profile)
+        if soc_start is None:
+            soc_start = _first_measured_soc(profile)
+        first = self._first_inputs(inputs)
+        states0 = np.array([self.initial_state(row, first, soc_start) for row in matrix])
+        states = states0.copy()
+        sel = np.array([self.trace_names.index(n) for n in record], dtype=np.int64)
+        n = inputs.shape[0]
+        out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
+        t0 = time.perf_counter()
+        acc = self.run(matrix, states, inputs, record_every=record_every if len(sel) else 0,
+                       record_sel=sel, record_out=out, threads=threads)
+        wall = time.perf_counter() - t0
+        return BatchResult(self, profile, matrix, states0, states, acc, list(record), out,
+                           record_every, wall)
+
+
+def _first_measured_soc(profile: Profile) -> float | None:
+    soc = profile.measured.get("soc_frac")
+    if soc is None:
+        return None
+    finite = np.flatnonzero(np.isfinite(soc))
+    return float(soc[finite[0]]) if finite.size else None
+
+
+def build_model(slots: Mapping[str, str | Effect | None] | None = None,
+                contributions: Sequence[str | Effect] = (),
+                params: Mapping[str, Mapping[str, float]] | None = None,
+                tables: Mapping[str, Mapping[str, object]] | None = None,
+                bounds: Mapping[str, Mapping[str, Sequence[float]]] | None = None,
+                dt_s: float = 0.1, name: str = "") -> Model:
+    """Compose effects into a model.
+
+    Parameters
+    ----------
+    slots
+        Implementation per slot by name (or Effect); ``None`` or ``"none"`` leaves a slot that
+        allows it empty; unnamed slots take their default implementation.
+    contributions
+        Contribution effects, by name or Effect, summed into their sinks in this order.
+    params, tables, bounds
+        ``{effect: {param: value}}``, ``{effect: {table: preset name or points}}`` and
+        ``{effect: {param: [low, high]}}`` (bounds may only narrow the declared ones). Entries
+        for effects that are registered but not in this model are ignored.
+    dt_s
+        Time step [s].
+    """
+    slots = dict(slots or {})
+    for slot in slots:
+        if slot not in SLOTS:
+            raise unknown_name("slot", slot, SLOTS)
+    chosen: dict[str, Effect | None] = {}
+    for slot_name, slot in SLOTS.items():
+        choice = slots.get(slot_name, slot.default)
+        if choice is None or choice == "none":
+            if slot.none is None:
+                raise CompositionError(f"Slot '{slot_name}' cannot be empty ({slot.description}).")
+            chosen[slot_name] = None
+            continue
+        eff = _resolve(choice)
+        if eff.slot != slot_name:
+            raise CompositionError(
+                f"Effect '{eff.name}' is a {eff.role}, it cannot fill slot '{slot_name}'.")
+        chosen[slot_name] = eff
+    sinks: dict[str, list[Effect]] = {s: [] for s in SINKS}
+    seen = set()
+    for item in contributions:
+        eff = _resolve(item)
+        if eff.sink is None:
+            raise CompositionError(
+                f"Effect '{eff.name}' fills slot '{eff.slot}'; choose it as that slot's "
+                "implementation, not as a contribution.")
+        if eff.name in seen:
+            raise CompositionError(f"Effect '{eff.name}' is listed twice.")
+        seen.add(eff.name)
+        sinks[eff.sink].append(eff)
+
+    in_model = {e.name: e for e in list(chosen.values()) + [e for v in sinks.values() for e in v]
+                if e is not None}
+    values: dict[str, float] = {}
+    for effect_name, entries in (params or {}).items():
+        eff = in_model.get(effect_name) or get_effect(effect_name)
+        for pname, value in (entries or {}).items():
+            eff.param(pname)
+            if effect_name in in_model:
+                values[f"{effect_name}.{pname}"] = float(value)
+    box: dict[str, tuple[float, float]] = {}
+    for effect_name, entries in (bounds or {}).items():
+        eff = in_model.get(effect_name) or get_effect(effect_name)
+        for pname, pair in (entries or {}).items():
+            declared = eff.param(pname).bounds
+            low, high = (float(v) for v in pair)
+            if not declared[0] <= low <= high <= declared[1]:
+                raise ConfigError(
+                    f"Bounds [{low}, {high}] for '{effect_name}.{pname}' must narrow its declared "
+                    f"bounds [{declared[0]}, {declared[1]}], not widen them.")
+            box[f"{effect_name}.{pname}"] = (low, high)
+    encoded = {}
+    table_values = tables or {}
+    for effect_name in table_values:
+        eff = in_model.get(effect_name) or get_effect(effect_name)
+        for tname in table_values[effect_name] or {}:
+            eff.table(tname)
+    for eff in in_model.values():
+        for table in eff.tables:
+            value = (table_values.get(eff.name) or {}).get(table.name)
+            try:
+                encoded[(eff.name, table.name)] = table.resolve(value).encode(table.name)
+            except ValueError as exc:
+                raise ConfigError(f"Effect '{eff.name}': {exc}") from exc
+    comp = codegen.Composition(chosen, sinks, encoded)
+    return Model(comp, values, box, dt_s, name)

@@ -1,0 +1,117 @@
+"""Profiles: what a bus is asked to do, on the simulation time grid.
+
+A :class:`Profile` holds the input channels of a run (reference speed, grade, ambient, charger
+connection, ...) at the simulation step ``dt_s``, one row per step, plus the measured signals
+of a log on the same grid (``soc_frac``, ``battery_current_a``, ...) for comparison, and the list
+of every change made to the data on the way (resampling, smoothing, filling).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ebus_env.model.signals import INPUTS
+
+STANDING_SPEED_MPS = 0.05
+"""Below this reference speed the bus is standing (doors may open)."""
+
+
+@dataclass
+class Profile:
+    """Inputs of one run, one row per simulation step.
+
+    Parameters
+    ----------
+    channels
+        Input channels by canonical name (see :data:`ebus_env.model.signals.INPUTS`), SI units,
+        each an array of length ``n_steps``. ``speed_ref_mps`` is required.
+    dt_s
+        Simulation time step [s].
+    name
+        Label for reports.
+    start_time_h
+        Time of day at the first row [h].
+    measured
+        Measured signals on the same grid (``soc_frac``, ``battery_current_a``, ...), NaN where
+        the log has none.
+    notes
+        Every change made to the data, in words.
+    """
+
+    channels: dict[str, np.ndarray]
+    dt_s: float
+    name: str = ""
+    start_time_h: float = 0.0
+    measured: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        if "speed_ref_mps" not in self.channels:
+            raise ValueError("A profile needs the channel 'speed_ref_mps'.")
+        n = len(self.channels["speed_ref_mps"])
+        for name, values in list(self.channels.items()) + list(self.measured.items()):
+            if len(values) != n:
+                raise ValueError(f"Profile channel '{name}' has {len(values)} rows, expected {n}.")
+        if n < 2:
+            raise ValueError("A profile needs at least two time steps.")
+        self.channels = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
+        self.measured = {k: np.asarray(v, dtype=float) for k, v in self.measured.items()}
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.channels["speed_ref_mps"])
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return np.arange(self.n_steps) * self.dt_s
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_steps * self.dt_s
+
+    @property
+    def distance_m(self) -> float:
+        """Distance of the reference speed [m] (trapezoidal)."""
+        v = self.channels["speed_ref_mps"]
+        return float(np.sum(0.5 * (v[1:] + v[:-1])) * self.dt_s)
+
+    def channel(self, name: str) -> np.ndarray:
+        """A channel as given, derived from others, or filled with its default."""
+        if name in self.channels:
+            return self.channels[name]
+        v = self.channels["speed_ref_mps"]
+        if name == "accel_ref_mps2":
+            a = np.zeros_like(v)
+            a[:-1] = np.diff(v) / self.dt_s
+            return a
+        if name == "time_of_day_h":
+            return (self.start_time_h + self.time_s / 3600.0) % 24.0
+        if name == "door_open":
+            connected = self.channel("charger_connected") > 0.5
+            return ((v < STANDING_SPEED_MPS) & ~connected).astype(float)
+        if name in INPUTS:
+            return np.full(self.n_steps, INPUTS[name].default)
+        raise KeyError(f"Profile has no channel '{name}' and no rule to derive it.")
+
+    def with_channels(self, **channels) -> Profile:
+        """A copy with channels replaced or added (arrays or scalars)."""
+        new = dict(self.channels)
+        for name, value in channels.items():
+            new[name] = np.broadcast_to(np.asarray(value, dtype=float), (self.n_steps,)).copy()
+        return Profile(new, self.dt_s, self.name, self.start_time_h, dict(self.measured),
+                       list(self.notes))
+
+    def slice(self, start: int, stop: int) -> Profile:
+        """Rows ``start:stop`` as a profile of their own."""
+        return Profile({k: v[start:stop] for k, v in self.channels.items()}, self.dt_s,
+                       self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
+                       {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes))
+
+    def to_frame(self):
+        """The profile as a pandas DataFrame (``time_s`` first)."""
+        import pandas as pd
+
+        data = {"time_s": self.time_s, **self.channels, **self.measured}
+        return pd.DataFrame(data)

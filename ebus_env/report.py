@@ -1,0 +1,88 @@
+"""Summaries for people (a table) and for programs (JSON)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+BREAKDOWN_LABELS = {
+    "traction": "traction (motor at wheels)",
+    "regen_recovered": "inertia recovered by regen",
+    "aero_drag": "aerodynamic drag",
+    "rolling_resistance": "rolling resistance",
+    "road_grade": "road grade (net)",
+    "inertia_net": "kinetic energy (net change)",
+    "friction_brake": "friction-brake loss",
+    "drivetrain_loss": "drivetrain loss",
+    "auxiliaries": "auxiliaries",
+    "cabin_hvac": "HVAC",
+    "battery_ohmic_loss": "battery ohmic loss",
+    "coulombic_loss": "battery coulombic loss",
+    "charging": "charging (DC into the bus)",
+    "charger_loss": "charger loss",
+}
+
+FIGURES = [
+    ("distance_km", "distance", "km", 2),
+    ("duration_h", "duration", "h", 2),
+    ("battery_energy_kwh", "energy drawn from the battery (net)", "kWh", 2),
+    ("consumed_energy_kwh", "energy used (battery + charger)", "kWh", 2),
+    ("kwh_per_km", "consumption", "kWh/km", 3),
+    ("soc_start_pct", "SoC start", "%", 1),
+    ("soc_end_pct", "SoC end", "%", 1),
+    ("soc_min_pct", "SoC minimum", "%", 1),
+    ("peak_grid_kw", "peak grid power", "kW", 1),
+    ("grid_energy_kwh", "grid energy", "kWh", 2),
+    ("charging_time_h", "time on chargers", "h", 2),
+    ("max_behind_m", "largest lag behind the reference", "m", 1),
+    ("soc_rmse_pct", "SoC RMSE vs measured", "%-pts", 2),
+    ("soc_nrmse", "SoC NRMSE (range-normalised)", "1", 3),
+    ("soc_max_abs_error_pct", "SoC max |error|", "%-pts", 2),
+    ("soc_end_error_pct", "SoC error at the end", "%-pts", 2),
+    ("battery_shortfall_kwh", "power the pack could not deliver", "kWh", 3),
+    ("wall_time_s", "simulation wall time", "s", 4),
+]
+
+
+def summary_tables(summary: dict, title: str = ""):
+    """Two rich tables: the figures, and the energy breakdown by effect."""
+    from rich.table import Table
+
+    figures = Table(title=title or None, show_header=True, header_style="bold")
+    figures.add_column("figure")
+    figures.add_column("value", justify="right")
+    figures.add_column("unit")
+    for key, label, unit, digits in FIGURES:
+        if key in summary and summary[key] is not None and not _nan(summary[key]):
+            figures.add_row(label, f"{summary[key]:.{digits}f}", unit)
+    breakdown = Table(title="energy breakdown", show_header=True, header_style="bold")
+    breakdown.add_column("effect")
+    breakdown.add_column("kWh", justify="right")
+    breakdown.add_column("kWh/km", justify="right")
+    distance = summary.get("distance_km") or float("nan")
+    for key, value in summary["breakdown_kwh"].items():
+        per_km = value / distance if distance and distance > 0 else float("nan")
+        breakdown.add_row(BREAKDOWN_LABELS.get(key, key), f"{value:.2f}", f"{per_km:.3f}")
+    return figures, breakdown
+
+
+def _nan(value) -> bool:
+    return isinstance(value, float) and math.isnan(value)
+
+
+def _clean(value):
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if hasattr(value, "item"):
+        return _clean(value.item())
+    return value
+
+
+def write_json(data: dict, path: str | Path) -> None:
+    """JSON with NaN/inf written as null."""
+    Path(path).write_text(json.dumps(_clean(data), indent=2) + "\n")

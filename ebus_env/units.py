@@ -1,0 +1,42 @@
+"""Units, physical constants and sign conventions, written once.
+
+The model computes in SI (m, s, kg, N, W, J, A, V, K offsets in degC) and reports in the units
+people expect (km, h, kWh, kW, km/h, %).
+
+Sign conventions
+----------------
+* Battery power and current > 0 **discharge** the pack; < 0 charge it.
+* Wheel power and force > 0 **propel** the bus; < 0 brake it.
+* Road-load forces > 0 **resist** motion (uphill grade > 0, downhill < 0).
+* Charger and grid power >= 0 flow **into** the bus.
+* Heat flows into the cabin are > 0.
+"""
+
+from __future__ import annotations
+
+GRAVITY_MPS2 = 9.80665
+"""Standard gravity [m/s^2]."""
+
+PASSENGER_MASS_KG = 68.0
+"""Design mass of one passenger [kg] (UN ECE R107; ADVISOR uses 150 lb = 68 kg)."""
+
+AIR_CP_J_PER_KG_K = 1005.0
+"""Specific heat of air at constant pressure [J/(kg K)]."""
+
+SECONDS_PER_HOUR = 3600.0
+J_PER_KWH = 3.6e6
+
+
+def kmh_to_mps(speed_kmh):
+    """Convert [km/h] to [m/s]."""
+    return speed_kmh / 3.6
+
+
+def mps_to_kmh(speed_mps):
+    """Convert [m/s] to [km/h]."""
+    return speed_mps * 3.6
+
+
+def j_to_kwh(energy_j):
+    """Convert [J] to [kWh]."""
+    return energy_j / J_PER_KWH

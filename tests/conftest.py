@@ -1,0 +1,63 @@
+"""Shared fixtures: bus configs, built models (compiled once per session) and profiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.profile import Profile
+
+DT = 0.1
+
+
+def constant_profile(speed_mps: float, seconds: float, dt_s: float = DT, **channels) -> Profile:
+    """Accelerate smoothly to ``speed_mps`` (1 m/s^2), then hold it."""
+    n = int(round(seconds / dt_s))
+    t = np.arange(n) * dt_s
+    v = np.minimum(t * 1.0, speed_mps)
+    data = {"speed_ref_mps": v}
+    for name, value in channels.items():
+        data[name] = np.broadcast_to(np.asarray(value, float), (n,)).copy()
+    return Profile(data, dt_s, f"{speed_mps} m/s")
+
+
+def standing_profile(seconds: float, dt_s: float = DT, **channels) -> Profile:
+    n = int(round(seconds / dt_s))
+    data = {"speed_ref_mps": np.zeros(n)}
+    for name, value in channels.items():
+        data[name] = np.broadcast_to(np.asarray(value, float), (n,)).copy()
+    return Profile(data, dt_s, "standing")
+
+
+@pytest.fixture(scope="session")
+def bus12():
+    return load_bus("12m")
+
+
+@pytest.fixture(scope="session")
+def bus18():
+    return load_bus("18m")
+
+
+@pytest.fixture(scope="session")
+def model12(bus12):
+    model = bus12.build()
+    model.compile()
+    return model
+
+
+@pytest.fixture(scope="session")
+def model12_nohvac(bus12):
+    return bus12.without_effect("cabin_hvac").build()
+
+
+@pytest.fixture(scope="session")
+def sort2_day(bus12):
+    return service_day("sort2", 13.5, DT, bus12.service)
+
+
+@pytest.fixture(scope="session")
+def sort2_hour(bus12):
+    return service_day("sort2", 1.0, DT, bus12.service)

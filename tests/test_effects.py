@@ -1,0 +1,272 @@
+"""Each effect on its own: hand-computed values, signs and limits, plain and compiled."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ebus_env.effects import battery, drivetrain
+from ebus_env.effects.base import get_effect
+from ebus_env.effects.tables import lookup1, lookup2
+from ebus_env.units import GRAVITY_MPS2
+
+
+def both(name, site="main"):
+    """The plain and the numba-compiled function of an effect's call site."""
+    eff = get_effect(name)
+    return eff.calls[site].function, eff.jitted(site)
+
+
+@pytest.mark.parametrize("fn", both("aero_drag"))
+def test_aero_drag_hand_value_and_cube_law(fn):
+    # 1/2 * 1.2 * 0.7 * 7.5 * 10^2 = 315 N
+    assert fn(10.0, 0.7, 7.5, 1.2) == pytest.approx(315.0)
+    assert fn(0.0, 0.7, 7.5, 1.2) == 0.0
+    # power F v: doubling v multiplies it by 8
+    assert fn(20.0, 0.7, 7.5, 1.2) * 20.0 == pytest.approx(8 * fn(10.0, 0.7, 7.5, 1.2) * 10.0)
+
+
+@pytest.mark.parametrize("fn", both("rolling_resistance"))
+def test_rolling_resistance(fn):
+    assert fn(5.0, 15000.0, 0.0, 0.008) == pytest.approx(15000 * GRAVITY_MPS2 * 0.008)
+    assert fn(0.0, 15000.0, 0.0, 0.008) == 0.0  # a standing bus
+    # on a 10 % grade the normal force is m g cos(alpha)
+    assert fn(5.0, 15000.0, 0.1, 0.008) == pytest.approx(
+        15000 * GRAVITY_MPS2 * 0.008 * math.cos(math.atan(0.1)))
+
+
+@pytest.mark.parametrize("fn", both("road_grade"))
+def test_road_grade_signs(fn):
+    up = fn(15000.0, 0.05)
+    assert up == pytest.approx(15000 * GRAVITY_MPS2 * math.sin(math.atan(0.05)))
+    assert fn(15000.0, -0.05) == pytest.approx(-up)
+    assert fn(15000.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("fn", both("passenger_load"))
+def test_passenger_load_measured_count_wins(fn):
+    assert fn(math.nan, 0.5, 80.0) == 40.0
+    assert fn(12.0, 0.5, 80.0) == 12.0
+
+
+@pytest.mark.parametrize("fn", both("passenger_mass"))
+def test_passenger_mass(fn):
+    assert fn(40.0, 68.0) == 2720.0
+
+
+@pytest.mark.parametrize("fn", both("regen_cutoff"))
+def test_regen_cutoff(fn):
+    assert fn(1.4, 1.5, 1.0) == 0.0
+    assert fn(1.5, 1.5, 1.0) == 0.0
+    assert fn(1.6, 1.5, 0.8) == 0.8
+
+
+@pytest.mark.parametrize("fn", both("cccv_taper"))
+def test_cccv_taper_decays_with_negative_exponent(fn):
+    cc, taper = fn(0.80, 300.0, 87.5, 0.23, 3.0)
+    assert cc == 900.0 and taper == 1.0
+    # physics.md 5.4: exp(-0.23 (SoC - 87.5)) = 0.563 at 90 %, 0.178 at 95 %, 0.056 at 100 %
+    assert fn(0.90, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.563, abs=1e-3)
+    assert fn(0.95, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.178, abs=1e-3)
+    assert fn(1.00, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.056, abs=1e-3)
+    tapers = [fn(s, 300.0, 87.5, 0.23, 3.0)[1] for s in np.linspace(0.85, 1.0, 31)]
+    assert np.all(np.diff(tapers) <= 0)
+
+
+@pytest.mark.parametrize("fn", both("static_rcd"))
+def test_static_rcd(fn):
+    assert fn(0.2, 1.5) == pytest.approx((0.8, 1.3))
+    assert fn(0.0, 1.5) == (1.0, 1.0)
+
+
+def test_auxiliaries_schedule():
+    from ebus_env.effects.tables import TableData
+
+    table = TableData((0, 7, 8, 9, 24), (0, 0, 2000, 0, 0)).encode("schedule_w")
+    for fn in both("auxiliaries"):
+        assert fn(3.0, 4000.0, table) == 4000.0
+        assert fn(8.0, 4000.0, table) == 6000.0
+        assert fn(7.5, 4000.0, table) == pytest.approx(5000.0)
+
+
+CABIN = dict(setpoint_degc=20.0, deadband_k=1.0, ua_w_per_k=400.0, heat_capacity_j_per_k=1e6,
+             fresh_air_kg_per_s=0.4, door_air_m3_per_s=0.7, passenger_heat_w=100.0,
+             solar_area_m2=6.0, heating_max_w=25000.0, cooling_max_w=25000.0,
+             heat_pump_max_w=16000.0, heat_pump_min_ambient_degc=-10.0, cop_heat_0c=2.45,
+             cop_heat_slope_per_k=0.07, cop_cool_25c=3.0, cop_cool_slope_per_k=0.06,
+             fan_power_w=800.0, control_gain_w_per_k=3000.0)
+
+
+def cabin(fn, cabin_temp, ambient, passengers=0.0, door=0.0, solar=0.0, **over):
+    p = {**CABIN, **over}
+    return fn(cabin_temp, ambient, passengers, door, solar, 0.0, 0.1, *p.values())
+
+
+@pytest.mark.parametrize("fn", both("cabin_hvac"))
+def test_cabin_hvac_heating_pulls_back_to_band_edge_with_heat_pump(fn):
+    # 0.1 K below the band (19 degC) at 0 degC outside: cancel the losses, add K * 0.1 K
+    conductance = 400.0 + 0.4 * 1005.0
+    passive = -conductance * 18.9 + 100.0  # driver's heat
+    electric, heat, next_temp = cabin(fn, 18.9, 0.0)
+    assert heat == pytest.approx(3000.0 * 0.1 - passive)
+    assert next_temp == pytest.approx(18.9 + 0.1 * 3000.0 * 0.1 / 1e6)
+    assert electric == pytest.approx(800.0 + heat / 2.45)  # heat pump, COP at 0 degC
+
+
+@pytest.mark.parametrize("fn", both("cabin_hvac"))
+def test_cabin_hvac_idles_in_band_and_uses_ptc_when_cold(fn):
+    electric, heat, _ = cabin(fn, 20.0, 19.0)
+    assert heat == 0.0 and electric == 800.0
+    # below the heat pump's minimum ambient the PTC heater (COP 1) does it all
+    electric, heat, _ = cabin(fn, 18.5, -15.0)
+    assert heat > 0 and electric == pytest.approx(800.0 + heat)
+    # saturated: a cold cabin gets the maximum heating power
+    _, heat, _ = cabin(fn, 0.0, -15.0)
+    assert heat == 25000.0
+
+
+@pytest.mark.parametrize("fn", both("cabin_hvac"))
+def test_cabin_hvac_cooling_and_door_losses(fn):
+    electric, heat, _ = cabin(fn, 21.5, 30.0, passengers=50.0, solar=600.0)
+    assert heat < 0
+    cop = 3.0 - 0.06 * 5.0
+    assert electric == pytest.approx(800.0 - heat / cop)
+    closed = cabin(fn, 18.0, 10.0)[1]
+    opened = cabin(fn, 18.0, 10.0, door=1.0)[1]
+    assert opened - closed == pytest.approx(1.2 * 1005.0 * 0.7 * 8.0)
+
+
+MOTOR = dict(wheel_radius_m=0.48, gear_ratio=5.67, gearbox_efficiency=0.96,
+             peak_power_kw=200.0, peak_torque_nm=2800.0, regen_power_kw=150.0)
+
+
+@pytest.mark.parametrize("fn", both("efficiency_map", "limits"))
+def test_motor_limits(fn):
+    traction, regen = fn(0.0, *MOTOR.values())
+    assert traction == pytest.approx(2800 * 5.67 * 0.96 / 0.48)  # torque-limited at rest
+    traction, regen = fn(20.0, *MOTOR.values())
+    assert traction == pytest.approx(200e3 * 0.96 / 20.0)  # power-limited
+    assert regen == pytest.approx(150e3 / (0.96 * 20.0))
+
+
+def test_map_power_quadrants_and_losses():
+    loss_map = drivetrain.LOSS_MAP.resolve().encode("loss_map")
+    for fn in both("efficiency_map", "power"):
+        args = (0.48, 5.67, 0.96, 2800.0, 3000.0, loss_map)
+        assert fn(0.0, 10.0, *args) == 0.0  # no torque, no power
+        motoring = fn(5000.0, 10.0, *args)
+        generating = fn(-5000.0, 10.0, *args)
+        wheel = 5000.0 * 10.0
+        assert wheel / 0.96 < motoring < wheel / 0.80  # losses on top of the gearbox
+        assert 0.70 * wheel * 0.96 < -generating < wheel * 0.96
+        eff = wheel / motoring
+        assert 0.85 < eff < 0.96
+
+
+def test_constant_efficiency_power():
+    for fn in both("constant_efficiency", "power"):
+        assert fn(1000.0, 10.0, 0.48, 5.67, 0.96, 0.9) == pytest.approx(1e4 / 0.96 / 0.9)
+        assert fn(-1000.0, 10.0, 0.48, 5.67, 0.96, 0.9) == pytest.approx(-1e4 * 0.96 * 0.9)
+
+
+def test_efficiency_map_converts_to_losses():
+    data = drivetrain.TableData((-1.0, 0.0, 1.0), (0.0, 0.5, 1.0),
+                                ((0.9, 0.9, 0.9), (0.9, 0.9, 0.9), (0.9, 0.9, 0.9)))
+    loss = np.array(drivetrain.efficiency_to_loss(data).z)
+    # motoring at tau = 1, s = 1: |tau s| (1/0.9 - 1); generating: |tau s| (1 - 0.9)
+    assert loss[2, 2] == pytest.approx(1 / 0.9 - 1)
+    assert loss[0, 2] == pytest.approx(0.1)
+    assert loss[1, 1] == 0.0
+
+
+BATTERY = dict(cells_series=204.0, cells_parallel=3.0, cell_capacity_ah=100.0,
+               cell_resistance_mohm=1.0, connection_factor=1.2,
+               activation_energy_j_per_mol=25000.0, temperature_degc=25.0,
+               coulombic_efficiency=0.998, soc_min_frac=0.0, soc_max_frac=1.0,
+               max_charge_c_rate=3.0, max_discharge_c_rate=5.0)
+
+
+def battery_tables():
+    return (battery.OCV_CELL.resolve().encode("ocv"),
+            battery.RESISTANCE_SOC.resolve().encode("r"))
+
+
+@pytest.mark.parametrize("fn", both("rint_battery", "state"))
+def test_battery_state(fn):
+    ocv_table, r_table = battery_tables()
+    ocv, r, q, charge_a, charge_w, discharge_w = fn(0.5, 1.0, 1.0, 0.1, *BATTERY.values(),
+                                                    ocv_table, r_table)
+    assert ocv == pytest.approx(204 * 3.270)  # A123 OCV at 50 %
+    assert r == pytest.approx(1e-3 * 204 / 3 * 1.2)
+    assert q == 300.0
+    assert charge_a == 900.0 and charge_w == pytest.approx(900 * (ocv + r * 900))
+    assert discharge_w == pytest.approx(1500 * (ocv - r * 1500))
+    # ageing shrinks capacity and raises resistance; cold raises resistance (Arrhenius)
+    _, r_aged, q_aged, *_ = fn(0.5, 0.8, 1.3, 0.1, *BATTERY.values(), ocv_table, r_table)
+    assert q_aged == 240.0 and r_aged == pytest.approx(1.3 * r)
+    cold = {**BATTERY, "temperature_degc": 0.0}
+    r_cold = fn(0.5, 1.0, 1.0, 0.1, *cold.values(), ocv_table, r_table)[1]
+    assert r_cold / r == pytest.approx(math.exp(25000 / 8.314 * (1 / 273.15 - 1 / 298.15)))
+    # a full pack accepts no charge; an empty one gives no power
+    assert fn(1.0, 1.0, 1.0, 0.1, *BATTERY.values(), ocv_table, r_table)[3] == 0.0
+    empty = {**BATTERY, "soc_min_frac": 0.1}
+    assert fn(0.05, 1.0, 1.0, 0.1, *empty.values(), ocv_table, r_table)[5] == 0.0
+
+
+@pytest.mark.parametrize("fn", both("rint_battery", "update"))
+def test_battery_update_current_and_soc(fn):
+    ocv, r, q = 660.0, 0.08, 300.0
+    current, voltage, soc_next, ohmic, coulombic, shortfall = fn(100e3, 0.5, ocv, r, q, 0.1, 0.998)
+    assert current * voltage == pytest.approx(100e3)
+    assert voltage == pytest.approx(ocv - r * current)
+    assert ohmic == pytest.approx(r * current**2)
+    assert soc_next == pytest.approx(0.5 - current * 0.1 / (3600 * q))
+    assert coulombic == 0.0 and shortfall == 0.0
+    # charging: coulombic efficiency applies to the stored charge
+    current, _, soc_next, _, coulombic, _ = fn(-100e3, 0.5, ocv, r, q, 0.1, 0.998)
+    assert current < 0 and soc_next == pytest.approx(0.5 - 0.998 * current * 0.1 / (3600 * q))
+    assert coulombic == pytest.approx(0.002 * ocv * -current)
+    # beyond the pack's maximum power OCV^2 / 4R the shortfall is reported, not hidden
+    *_, shortfall = fn(2e6, 0.5, ocv, r, q, 0.1, 0.998)
+    assert shortfall == pytest.approx(2e6 - ocv**2 / (4 * r))
+
+
+@pytest.mark.parametrize("fn", both("grid_charger"))
+def test_grid_charger(fn):
+    ocv, r = 660.0, 0.08
+    base = dict(charger_connected=1.0, charger_rating_w=math.nan, cc_current_a=900.0,
+                cv_taper=1.0, charge_current_max_a=900.0, ocv_v=ocv, resistance_ohm=r,
+                motor_power_w=0.0, dc_load_w=5000.0, time_s=0.0, power_kw=450.0,
+                efficiency=0.95, pulse_period_s=10.0, pulse_duty=1.0, pulse_low_frac=0.0)
+    dc, grid = fn(*base.values())
+    assert dc == pytest.approx(450e3) and grid == pytest.approx(450e3 / 0.95)
+    assert fn(*{**base, "charger_connected": 0.0}.values()) == (0.0, 0.0)
+    # the profile's rating wins over the parameter; CC-limited below it
+    dc, _ = fn(*{**base, "charger_rating_w": 18e3}.values())
+    assert dc == pytest.approx(18e3)
+    dc, _ = fn(*{**base, "cc_current_a": 100.0}.values())
+    assert dc == pytest.approx(100 * (ocv + r * 100) + 5000.0)
+    # pulsed: off in the second half of each period
+    pulsed = {**base, "pulse_duty": 0.5}
+    assert fn(*{**pulsed, "time_s": 2.0}.values())[0] == pytest.approx(450e3)
+    assert fn(*{**pulsed, "time_s": 7.0}.values())[0] == pytest.approx(5000.0)
+
+
+def test_lookups_interpolate_and_clamp():
+    from ebus_env.effects.tables import encode1, encode2
+
+    t1 = encode1("t", [0.0, 1.0, 3.0], [0.0, 10.0, 30.0])  # resampled to a step of 1
+    assert lookup1(t1, 2.5) == pytest.approx(25.0)
+    assert lookup1(t1, -1.0) == 0.0 and lookup1(t1, 9.0) == 30.0
+    t2 = encode2("t", [0.0, 1.0], [0.0, 2.0], [[0.0, 2.0], [10.0, 12.0]])
+    assert lookup2(t2, 0.5, 1.0) == pytest.approx(6.0)
+    assert lookup2(t2, 5.0, -5.0) == pytest.approx(10.0)
+
+
+def test_ocv_table_reproduced_exactly_on_its_breakpoints():
+    data = battery.OCV_CELL.presets["lfp_a123"]
+    table = data.encode("ocv")
+    for soc, volts in zip(data.x, data.y, strict=True):
+        assert lookup1(table, soc) == pytest.approx(volts, abs=1e-12)

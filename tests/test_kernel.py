@@ -1,0 +1,201 @@
+"""The compiled loop: batch = single runs = plain Python; continuation from a saved state;
+composition checks; a user's out-of-tree effect; the disk cache."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.errors import CompositionError, ConfigError
+from ebus_env.model.model import build_model
+from tests.conftest import DT, constant_profile
+
+ROOT = Path(__file__).resolve().parent.parent
+HEADWIND = f"{ROOT}/tests/user_effects/headwind.py:headwind"
+
+
+@pytest.fixture(scope="module")
+def mixed_profile(bus12):
+    """20 minutes of SORT 2 with a layover on the charger, on a cold morning."""
+    service = bus12.service
+    service.layover_every_min, service.layover_min = 8.0, 2.0
+    return service_day("sort2", 20 / 60, DT, service, ambient_degc=2.0)
+
+
+def candidate_rows(model, n=6, seed=1):
+    rng = np.random.default_rng(seed)
+    names = ["passenger_load.load_frac", "cabin_hvac.setpoint_degc", "static_rcd.rcd_frac",
+             "cccv_taper.cv_soc_pct", "regen_cutoff.cutoff_speed_mps", "grid_charger.power_kw",
+             "aero_drag.drag_coef"]
+    rows = []
+    for _ in range(n):
+        row = {}
+        for name in names:
+            low, high = model.bounds[model.param_index(name)]
+            row[name] = rng.uniform(low, high)
+        rows.append(row)
+    return rows
+
+
+def test_batch_equals_each_member_alone(model12, mixed_profile):
+    rows = candidate_rows(model12)
+    batch = model12.simulate_batch(mixed_profile, rows, soc_start=0.85, record=["soc_frac"],
+                                   record_every=10, threads=2)
+    for i, row in enumerate(rows):
+        single = model12.simulate(mixed_profile, row, soc_start=0.85)
+        np.testing.assert_array_equal(batch.accumulators[i], single.accumulators)
+        np.testing.assert_array_equal(batch.final_states[i], single.final_state)
+        np.testing.assert_array_equal(batch.record("soc_frac")[i], single.trace("soc_frac")[::10])
+    # the members really differ
+    assert np.ptp(batch.final("soc_frac")) > 1e-3
+
+
+def test_compiled_equals_plain_python(model12, mixed_profile):
+    short = mixed_profile.slice(0, 3000)  # 5 minutes, layover included
+    short = short.with_channels(charger_connected=np.r_[np.zeros(1500), np.ones(1500)])
+    params = model12.param_vector(candidate_rows(model12, 1)[0])
+    compiled = model12.simulate(short, params, soc_start=0.86)
+    plain = model12.simulate(short, params, soc_start=0.86, python=True)
+    np.testing.assert_allclose(plain.accumulators, compiled.accumulators, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(plain.final_state, compiled.final_state, rtol=1e-10)
+    np.testing.assert_allclose(plain.trace_array, compiled.trace_array, rtol=1e-5, atol=1e-5)
+
+
+def test_advancing_in_chunks_equals_one_run(model12, mixed_profile):
+    """What the vector env does: N buses, k steps at a time, from their saved state."""
+    inputs = model12.input_array(mixed_profile)
+    params = model12.param_matrix(candidate_rows(model12, 3))
+    first = {n: inputs[0, i] for i, n in enumerate(model12.input_names)}
+    state0 = np.array([model12.initial_state(p, first, 0.85) for p in params])
+    whole = state0.copy()
+    acc_whole = model12.run(params, whole, inputs, n_steps=len(inputs))
+    chunked = state0.copy()
+    acc = model12.new_accumulators(3)
+    step = 0
+    for k in (600, 1, 3000, len(inputs) - 3601):
+        model12.run(params, chunked, inputs, step0=np.full(3, step), n_steps=k, acc=acc)
+        step += k
+    np.testing.assert_array_equal(chunked, whole)
+    np.testing.assert_allclose(acc, acc_whole, rtol=1e-12, atol=1e-6)  # J; sums regrouped
+
+
+def test_buses_on_different_profiles_in_one_call(model12, bus12):
+    days = [service_day(c, 0.2, DT, bus12.service) for c in ("sort1", "sort2", "manhattan")]
+    n = min(d.n_steps for d in days)
+    inputs = np.stack([model12.input_array(d)[:n] for d in days])
+    params = np.tile(model12.params, (3, 1))
+    states = np.array([model12.initial_state(model12.params, {"speed_ref_mps": 0.0}, 0.9)
+                       for _ in days])
+    acc = model12.run(params, states, inputs, input_set=[0, 1, 2], n_steps=n)
+    for i, day in enumerate(days):
+        alone = model12.simulate(day.slice(0, n), soc_start=0.9, record=False)
+        np.testing.assert_array_equal(acc[i], alone.accumulators)
+
+
+def test_unknown_effect_suggests_the_close_name(bus12):
+    with pytest.raises(ConfigError, match="Unknown effect 'aero_drg'. Did you mean 'aero_drag'"):
+        bus12.with_effect("aero_drg")
+
+
+def test_effect_reading_a_missing_signal_is_refused():
+    from ebus_env.effects.base import Param, effect
+
+    @effect("needs_cabin", sink="dc_load_w", register_effect=False,
+            params=[Param("gain_w_per_k", 1.0, "W/K", (0.0, 10.0), "gain")])
+    def needs_cabin(cabin_temp_degc, gain_w_per_k):
+        return gain_w_per_k * cabin_temp_degc
+
+    with pytest.raises(CompositionError, match="reads 'cabin_temp_degc'"):
+        build_model(contributions=["aero_drag", needs_cabin])
+    # with the cabin model present it composes
+    build_model(contributions=["aero_drag", "cabin_hvac", needs_cabin])
+
+
+def test_signal_provided_twice_is_refused():
+    from ebus_env.effects.base import effect
+
+    @effect("second_hvac_heat", sink="dc_load_w", returns=("hvac_heat_w",),
+            register_effect=False)
+    def second(speed_mps):
+        return 0.0, 0.0
+
+    with pytest.raises(CompositionError, match="'hvac_heat_w'.*already provided"):
+        build_model(contributions=["cabin_hvac", second])
+
+
+def test_slot_and_contribution_roles_are_checked():
+    with pytest.raises(CompositionError, match="fills slot 'drivetrain'"):
+        build_model(contributions=["constant_efficiency"])
+    with pytest.raises(CompositionError, match="cannot fill slot 'battery'"):
+        build_model(slots={"battery": "efficiency_map"})
+    with pytest.raises(CompositionError, match="Slot 'battery' cannot be empty"):
+        build_model(slots={"battery": "none"})
+
+
+def test_bounds_and_values_are_checked(bus12):
+    with pytest.raises(ConfigError, match="narrow its declared bounds"):
+        build_model(bounds={"aero_drag": {"drag_coef": [0.1, 0.8]}},
+                    contributions=["aero_drag"])
+    model = bus12.build()
+    with pytest.raises(ConfigError, match="outside its bounds"):
+        model.param_vector({"aero_drag.drag_coef": 3.0})
+    with pytest.raises(ConfigError, match="Unknown parameter 'aero_drag.drag_cof'"):
+        model.param_vector({"aero_drag.drag_cof": 0.5})
+
+
+def test_user_effect_from_its_own_file_runs_in_the_compiled_core(bus12):
+    bus = bus12.without_effect("cabin_hvac").with_effect(HEADWIND)
+    model = bus.build()
+    assert "headwind.wind_speed_mps" in model.param_names
+    v = 12.0
+    result = model.simulate(constant_profile(v, 300.0), soc_start=0.9)
+    force = result.trace("headwind_n")
+    speed = result.trace("speed_mps")
+    assert force == pytest.approx(np.where(speed > 0, 0.5 * 1.2 * 5.25 * ((speed + 4) ** 2 - speed**2),
+                                           0.0), rel=1e-5)
+    assert force[-1] == pytest.approx(0.5 * 1.2 * 5.25 * ((v + 4.0) ** 2 - v**2), rel=1e-4)
+    calm = model.simulate(constant_profile(v, 300.0), {"headwind.wind_speed_mps": 0.0},
+                          soc_start=0.9, record=False)
+    s = result.summary()
+    assert s["breakdown_kwh"]["headwind"] > 0
+    assert calm.summary()["breakdown_kwh"]["headwind"] == 0.0
+    assert s["consumed_energy_kwh"] > calm.summary()["consumed_energy_kwh"]
+
+
+def test_second_process_loads_the_kernel_from_the_disk_cache(model12, tmp_path):
+    script = textwrap.dedent("""
+        from ebus_env.config import load_bus
+        model = load_bus("12m").build()
+        model.compile()
+        stats = model.kernel(False).stats
+        print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    hits, misses = map(int, out.stdout.split())
+    assert (hits, misses) == (1, 0)
+
+
+def test_memory_does_not_grow_with_steps_when_not_recording(model12, bus12):
+    import tracemalloc
+
+    def peak_extra(hours):
+        profile = service_day("sort2", hours, DT, bus12.service)
+        inputs = model12.input_array(profile)
+        params = model12.params[None, :]
+        states = model12.initial_state(model12.params, {"speed_ref_mps": 0.0}, 0.9)[None, :]
+        tracemalloc.start()
+        model12.run(params, states, inputs)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return peak
+
+    short, long = peak_extra(0.5), peak_extra(5.0)
+    assert long < short + 10_000  # bytes: nothing per step

@@ -1,0 +1,176 @@
+"""Physics properties of whole runs, per operating condition."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ebus_env.cycles import load_cycle, service_day
+from tests.conftest import DT, constant_profile, standing_profile
+
+
+def test_driving_lowers_soc(model12, sort2_hour):
+    profile = sort2_hour.with_channels(charger_connected=0.0)
+    result = model12.simulate(profile, soc_start=0.9)
+    soc = result.trace("soc_frac")
+    assert soc[-1] < soc[0] - 0.05
+    # on every lap (two minutes) the SoC falls
+    per_lap = soc[:: int(180 / DT)]
+    assert np.all(np.diff(per_lap) < 0)
+
+
+def test_standing_with_auxiliaries_lowers_soc_slowly(model12):
+    result = model12.simulate(standing_profile(3600.0, ambient_degc=20.0), soc_start=0.9)
+    s = result.summary()
+    drop_pct = s["soc_start_pct"] - s["soc_end_pct"]
+    loads_kwh = s["breakdown_kwh"]["auxiliaries"] + s["breakdown_kwh"]["cabin_hvac"]
+    assert 0.5 < drop_pct < 5.0  # a few %/h: 4 kW auxiliaries + fans on 200 kWh
+    assert s["distance_km"] == 0.0
+    # the SoC drop is what the loads took, plus the pack's own losses
+    assert s["battery_energy_kwh"] == pytest.approx(loads_kwh, rel=0.01)
+
+
+def test_charging_raises_soc_and_never_past_full(model12):
+    profile = standing_profile(3600.0, charger_connected=1.0, ambient_degc=20.0)
+    result = model12.simulate(profile, soc_start=0.6)
+    soc = result.trace("soc_frac")
+    assert soc[-1] > 0.99
+    assert soc.max() <= 1.0
+    assert result.final_state[model12.state_names.index("soc_frac")] <= 1.0
+    assert np.all(np.diff(soc) >= 0)  # on the charger the pack only gains
+    assert result.summary()["peak_grid_kw"] == pytest.approx(450 / 0.95, rel=1e-6)
+
+
+def test_charge_power_non_increasing_above_cccv_cutoff(model12):
+    profile = standing_profile(3600.0, charger_connected=1.0, ambient_degc=20.0)
+    result = model12.simulate(profile, soc_start=0.8)
+    soc = result.trace("soc_frac")
+    current = -result.trace("battery_current_a")
+    above = soc > 0.875 + 1e-4
+    assert above.sum() > 100
+    assert np.all(np.diff(current[above]) <= 1e-3)
+    # below the cutoff the current is flat (CC, capped by the charger's 450 kW)
+    below = (soc < 0.87) & (soc > 0.81)
+    assert np.ptp(current[below]) / current[below].mean() < 0.02
+
+
+def test_regen_is_zero_below_cutoff_speed(model12, sort2_hour):
+    result = model12.simulate(sort2_hour)
+    speed = result.trace("speed_mps")
+    motor = result.trace("motor_force_n")
+    cutoff = model12.params[model12.param_index("regen_cutoff.cutoff_speed_mps")]
+    braking = result.trace("wheel_force_n") < 0
+    assert np.all(motor[braking & (speed <= cutoff)] == 0.0)
+    assert np.any(motor[braking & (speed > cutoff)] < 0)  # and it does regenerate above
+
+
+def test_energy_balance_closes_over_a_full_day(model12, sort2_day):
+    """Battery energy from the SoC trace (OCV x dSoC x capacity) equals the sum of every
+    contribution and loss the summary reports, within 0.1 % of the pack's throughput."""
+    result = model12.simulate(sort2_day, soc_start=0.95)
+    s = result.summary()
+    soc = result.trace("soc_frac").astype(np.float64)
+    ocv = result.trace("ocv_v").astype(np.float64)
+    capacity = result.trace("capacity_ah")[0]
+    soc_next = np.append(soc[1:], result.final_state[model12.state_names.index("soc_frac")])
+    chemical = np.sum(ocv * (soc - soc_next)) * capacity * 3600.0 / 3.6e6
+    throughput = np.sum(np.abs(ocv * (soc - soc_next))) * capacity * 3600.0 / 3.6e6
+    b = s["breakdown_kwh"]
+    uses = (b["inertia_net"] + b["aero_drag"] + b["rolling_resistance"] + b["road_grade"]
+            + b["friction_brake"] + b["drivetrain_loss"] + b["auxiliaries"] + b["cabin_hvac"]
+            + b["battery_ohmic_loss"] + b["coulombic_loss"] - b["charging"])
+    assert throughput > 100.0  # the day cycles the pack a lot: a meaningful test
+    assert abs(chemical - uses) < 1e-3 * throughput
+    assert s["battery_energy_kwh"] == pytest.approx(chemical, abs=1e-3 * throughput)
+    # the kinetic energy term is the change of 1/2 m_eff v^2 (zero over a day from rest to rest)
+    assert abs(b["inertia_net"]) < 1e-3 * b["traction"]
+
+
+def test_12m_on_sort2_without_hvac_in_published_range(model12_nohvac, sort2_day):
+    s = model12_nohvac.simulate(sort2_day, soc_start=0.95, record=False).summary()
+    assert 0.8 <= s["kwh_per_km"] <= 1.6
+    assert s["distance_km"] == pytest.approx(13.5 * 18.6 * 0.91, rel=0.05)  # layovers: ~9 %
+
+
+def test_18m_uses_more_than_12m(bus12, bus18, model12, sort2_hour):
+    model18 = bus18.build()
+    s12 = model12.simulate(sort2_hour, soc_start=0.9, record=False).summary()
+    s18 = model18.simulate(sort2_hour, soc_start=0.9, record=False).summary()
+    assert s18["kwh_per_km"] > 1.2 * s12["kwh_per_km"]
+
+
+def test_consumption_rises_with_mean_speed_on_scaled_cycles(bus12, model12_nohvac):
+    """SORT 2 scaled to higher mean speeds: drag and braking losses grow; the constant
+    auxiliary load per km shrinks, so at low speeds the total can stay flat."""
+    cycle = load_cycle("sort2")
+    totals, driving = [], []
+    for factor in (0.7, 0.85, 1.0, 1.15, 1.3):
+        profile = service_day(cycle, 2.0, DT, bus12.service, cycle.mean_speed_kmh * factor)
+        s = model12_nohvac.simulate(profile, soc_start=0.9, record=False).summary()
+        totals.append(s["kwh_per_km"])
+        driving.append((s["consumed_energy_kwh"] - s["breakdown_kwh"]["auxiliaries"])
+                       / s["distance_km"])
+    assert np.all(np.diff(driving) > 0)
+    assert np.all(np.diff(totals[2:]) > 0)
+
+
+def test_bus_falls_behind_an_infeasible_reference(bus12):
+    weak = bus12.without_effect("cabin_hvac").build()
+    profile = service_day("sort3", 0.5, DT, bus12.service)
+    strong = weak.simulate(profile, soc_start=0.9).summary()
+    slow = weak.simulate(profile, {"efficiency_map.peak_power_kw": 40.0}, soc_start=0.9)
+    assert strong["max_behind_m"] < 2.0
+    assert slow.summary()["max_behind_m"] > 50.0
+    assert slow.summary()["distance_km"] < strong["distance_km"]
+    assert np.all(slow.trace("distance_behind_m") >= -1e-3)
+
+
+def test_top_speed_caps_the_reference(model12):
+    result = model12.simulate(constant_profile(30.0, 200.0))
+    assert result.trace("speed_mps").max() <= 80 / 3.6 + 1e-6
+    assert result.summary()["max_behind_m"] > 100
+
+
+def test_tracking_is_close_on_a_feasible_cycle(model12, sort2_hour):
+    result = model12.simulate(sort2_hour)
+    error = result.trace("speed_mps") - result.trace("speed_ref_mps")
+    assert np.abs(error).max() < 0.3
+    assert result.summary()["max_behind_m"] < 1.0
+
+
+def test_passengers_grade_and_cold_cost_energy(model12):
+    flat = constant_profile(12.0, 600.0, ambient_degc=20.0)
+    base = model12.simulate(flat, soc_start=0.9, record=False).summary()
+    full = model12.simulate(flat.with_channels(passenger_count=85.0), soc_start=0.9,
+                            record=False).summary()
+    uphill = model12.simulate(flat.with_channels(grade_frac=0.03), soc_start=0.9,
+                              record=False).summary()
+    downhill = model12.simulate(flat.with_channels(grade_frac=-0.03), soc_start=0.9,
+                                record=False).summary()
+    cold = model12.simulate(flat.with_channels(ambient_degc=-5.0), soc_start=0.9,
+                            record=False).summary()
+    assert full["consumed_energy_kwh"] > base["consumed_energy_kwh"]
+    assert uphill["consumed_energy_kwh"] > base["consumed_energy_kwh"]
+    assert downhill["battery_energy_kwh"] < 0  # 3 % down at 43 km/h: regen beats the loads
+    assert uphill["breakdown_kwh"]["road_grade"] > 0 > downhill["breakdown_kwh"]["road_grade"]
+    assert cold["breakdown_kwh"]["cabin_hvac"] > 3 * base["breakdown_kwh"]["cabin_hvac"]
+
+
+def test_pulsed_charging_halves_charge_in_cc_phase(model12):
+    profile = standing_profile(600.0, charger_connected=1.0, ambient_degc=20.0)
+    steady = model12.simulate(profile, soc_start=0.3, record=False).summary()
+    pulsed = model12.simulate(profile, {"grid_charger.pulse_duty": 0.5}, soc_start=0.3,
+                              record=False).summary()
+    gain = steady["soc_end_pct"] - 30.0
+    assert (pulsed["soc_end_pct"] - 30.0) == pytest.approx(0.5 * gain, rel=0.05)
+    assert pulsed["peak_grid_kw"] == pytest.approx(steady["peak_grid_kw"], rel=1e-6)
+
+
+def test_battery_ageing_drains_faster(model12, sort2_hour):
+    profile = sort2_hour.with_channels(charger_connected=0.0)
+    new = model12.simulate(profile, soc_start=0.9, record=False).summary()
+    aged = model12.simulate(profile, {"static_rcd.rcd_frac": 0.2}, soc_start=0.9,
+                            record=False).summary()
+    drop_new = new["soc_start_pct"] - new["soc_end_pct"]
+    drop_aged = aged["soc_start_pct"] - aged["soc_end_pct"]
+    assert drop_aged == pytest.approx(drop_new / 0.8, rel=0.02)
