@@ -192,7 +192,7 @@ def effects(
     """List the effects with their parameters (default or the bus's value, unit, bounds)."""
 
     def body():
-        from rich.table import Table
+        from rich.markup import escape
 
         from ebus_env.config import load_bus, resolve_effect
         from ebus_env.effects.base import registered_effects
@@ -204,23 +204,20 @@ def effects(
             model = load_bus(bus, with_=_split(with_)).build()
             values = dict(zip(model.param_names, model.params, strict=True))
             in_model = {e.name for e in model.effects}
-        table = Table(title="effects" + (f" of bus {bus}" if bus else ""), show_lines=False)
-        for col in ("effect", "role", "parameter", "value", "unit", "bounds", "meaning"):
-            table.add_column(col)
-        for name, eff in sorted(registered_effects().items(), key=lambda kv: kv[1].role):
+        console = _console()
+        console.print(f"[bold]effects{f' of bus {bus}' if bus else ''}[/]  (parameter, value, "
+                      "unit, bounds, meaning)")
+        for name, eff in sorted(registered_effects().items(), key=lambda kv: (kv[1].role, kv[0])):
             if in_model is not None and name not in in_model:
                 continue
-            first = True
-            for p in eff.params or [None]:
-                if p is None:
-                    table.add_row(name, eff.role, "-", "", "", "", (eff.doc or "").split("\n")[0])
-                    continue
+            summary = escape((eff.doc or "").strip().split("\n")[0])
+            console.print(f"\n[bold cyan]{name}[/]  [dim]{eff.role}[/]  {summary}",
+                          soft_wrap=True, highlight=False)
+            for p in eff.params:
                 value = values.get(f"{name}.{p.name}", p.default)
-                table.add_row(name if first else "", eff.role if first else "", p.name,
-                              f"{value:g}", p.unit, f"[{p.bounds[0]:g}, {p.bounds[1]:g}]",
-                              p.description)
-                first = False
-        _console().print(table)
+                console.print(f"    {p.name:30s} {value:>10g} {p.unit:8s} "
+                              f"[{p.bounds[0]:g}, {p.bounds[1]:g}]  {p.description}",
+                              soft_wrap=True, highlight=False, markup=False)
 
     _run(body)
 

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.errors import CompositionError, ConfigError
 from ebus_env.model.model import build_model

@@ -139,6 +139,14 @@ def _apply_columns(frame: pd.DataFrame, columns: dict | None, path: Path,
     return out
 
 
+def _close_column(wanted: str, columns) -> str:
+    """`` The file has 'x': is that it?`` for the column most like ``wanted``, or ``""``."""
+    import difflib
+
+    match = difflib.get_close_matches(wanted, [str(c) for c in columns], n=1, cutoff=0.6)
+    return f" The file has '{match[0]}': is that it?" if match else ""
+
+
 def _numeric(frame: pd.DataFrame, name: str, path: Path) -> np.ndarray:
     """A column as floats; text that is not a number is an error (empty cells become NaN)."""
     raw = frame[name]
@@ -183,7 +191,7 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarr
             start_h = first.hour + first.minute / 60 + first.second / 3600
             t = ((stamps - first).dt.total_seconds()).to_numpy(float)
     else:
-        raise LogError("No time column" + did_you_mean("time_s", frame.columns), path=path,
+        raise LogError("No time column." + _close_column("time_s", frame.columns), path=path,
                        fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
     nan = np.flatnonzero(np.isnan(t))
     if nan.size:
@@ -299,7 +307,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     speed_col = "speed_kmh" if "speed_kmh" in frame.columns else (
         "speed_mps" if "speed_mps" in frame.columns else None)
     if speed_col is None:
-        raise LogError("No speed column" + did_you_mean("speed_kmh", frame.columns), path=path,
+        raise LogError("No speed column." + _close_column("speed_kmh", frame.columns), path=path,
                        fix="name it 'speed_kmh' or 'speed_mps', or map it with columns=")
     values: dict[str, np.ndarray] = {}
     for name_ in frame.columns:

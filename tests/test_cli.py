@@ -1,0 +1,82 @@
+"""The command line, end to end (in process)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from ebus_env.cli import app
+
+ROOT = Path(__file__).resolve().parent.parent
+runner = CliRunner()
+
+
+def invoke(*args):
+    result = runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+    return result.exit_code, result.output
+
+
+def test_simulate_cycle_writes_json_trace_and_plot(tmp_path):
+    code, out = invoke("simulate", "--bus", "12m", "--cycle", "sort2", "--hours", "1",
+                       "--json", tmp_path / "s.json", "--out", tmp_path / "t.parquet",
+                       "--plot", tmp_path / "t.png")
+    assert code == 0, out
+    assert "consumption" in out and "aerodynamic drag" in out and "peak grid power" in out
+    summary = json.loads((tmp_path / "s.json").read_text())
+    for key in ("distance_km", "duration_h", "battery_energy_kwh", "kwh_per_km",
+                "soc_start_pct", "soc_end_pct", "peak_grid_kw", "breakdown_kwh"):
+        assert key in summary
+    assert summary["duration_h"] == pytest.approx(1.0)
+    assert set(summary["breakdown_kwh"]) >= {"aero_drag", "rolling_resistance", "road_grade",
+                                             "friction_brake", "drivetrain_loss",
+                                             "battery_ohmic_loss", "cabin_hvac", "auxiliaries",
+                                             "charging", "charger_loss", "regen_recovered"}
+    trace = pd.read_parquet(tmp_path / "t.parquet")
+    assert len(trace) == 36000
+    assert {"time_s", "speed_kmh", "soc_pct", "aero_drag_w", "cabin_hvac_w",
+            "battery_loss_w", "grid_power_w", "distance_behind_m"} <= set(trace.columns)
+    assert (tmp_path / "t.png").stat().st_size > 10_000
+
+
+def test_simulate_measured_log_reports_soc_error(tmp_path):
+    code, out = invoke("simulate", "--bus", "bmw_i3", "--columns", "bmw_i3_tum",
+                       "--measured", ROOT / "data/measured/bmw_i3_tum/TripB03_1hz.csv",
+                       "--json", tmp_path / "s.json")
+    assert code == 0, out
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert 0 < summary["soc_rmse_pct"] < 20
+    assert summary["soc_start_pct"] == pytest.approx(67.4)
+    assert "SoC RMSE vs measured" in out
+    assert "grade from 'altitude_m'" in out  # the loader says what it changed
+
+
+def test_user_effect_on_the_command_line(tmp_path):
+    code, out = invoke("simulate", "--cycle", "sort3", "--hours", "0.5",
+                       "--with", ROOT / "tests/user_effects/headwind.py:headwind",
+                       "--without", "cabin_hvac", "--set", "headwind.wind_speed_mps=6",
+                       "--json", tmp_path / "s.json")
+    assert code == 0, out
+    breakdown = json.loads((tmp_path / "s.json").read_text())["breakdown_kwh"]
+    assert breakdown["headwind"] > 0 and "cabin_hvac" not in breakdown
+
+
+def test_errors_are_clear_and_exit_2(tmp_path):
+    code, out = invoke("simulate", "--with", "aero_drg")
+    assert code == 2 and "Did you mean 'aero_drag'" in out
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,speed_kmh\n0,1\n0,2\n1,3\n")
+    code, out = invoke("simulate", "--measured", bad)
+    assert code == 2 and "Duplicated times" in out and "row 1" in out
+    code, out = invoke("simulate", "--set", "aero_drag.drag_coef=9")
+    assert code == 2 and "outside its bounds" in out
+
+
+def test_effects_and_cycles_listings():
+    code, out = invoke("effects", "--bus", "12m")
+    assert code == 0 and "drag_coef" in out and "cabin_hvac" in out
+    code, out = invoke("cycles")
+    assert code == 0 and "sort2" in out and "manhattan" in out
