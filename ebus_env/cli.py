@@ -70,6 +70,9 @@ def simulate(
         help="Scale the cycle to this mean speed [km/h]")] = None,
     ambient_degc: Annotated[float | None, typer.Option(help="Ambient for cycle days [degC]")] = None,
     soc_start_pct: Annotated[float | None, typer.Option(help="Initial SoC [%]")] = None,
+    load: Annotated[str | None, typer.Option(
+        help="Passenger load: driver, half, full (the paper's categories) or a fraction 0-1")]
+    = None,
     with_: WithOpt = None,
     without: WithoutOpt = None,
     set_: SetOpt = None,
@@ -89,13 +92,26 @@ def simulate(
 ):
     """Run a bus through a cycle day or a measured log and print the energy table."""
     _run(lambda: _simulate(bus, cycle, measured, hours, mean_speed_kmh, ambient_degc,
-                           soc_start_pct, with_, without, set_, overlay, columns, gaps, fill,
-                           not no_unit_check, dt_s, out, plot, json_path))
+                           soc_start_pct, load, with_, without, set_, overlay, columns, gaps,
+                           fill, not no_unit_check, dt_s, out, plot, json_path))
+
+
+def _load_frac(load: str) -> float:
+    from ebus_env.config import LOAD_CATEGORIES
+    from ebus_env.errors import ConfigError
+
+    if load in LOAD_CATEGORIES:
+        return LOAD_CATEGORIES[load]
+    try:
+        return float(load)
+    except ValueError:
+        raise ConfigError(f"--load: '{load}' is none of {', '.join(LOAD_CATEGORIES)} "
+                          "and not a fraction.") from None
 
 
 def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, soc_start_pct,
-              with_, without, set_, overlay, columns, gaps, fill, check_units, dt_s, out, plot,
-              json_path):
+              load, with_, without, set_, overlay, columns, gaps, fill, check_units, dt_s, out,
+              plot, json_path):
     from ebus_env.config import load_bus
     from ebus_env.errors import ConfigError
     from ebus_env.report import summary_tables, write_json
@@ -110,7 +126,10 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
     t0 = time.perf_counter()
     model = bus.build(dt_s)
-    params = model.param_vector(_overrides(set_))
+    overrides = _overrides(set_)
+    if load is not None:
+        overrides["passenger_load.load_frac"] = _load_frac(load)
+    params = model.param_vector(overrides)
     record = out is not None or plot is not None or measured is not None
     compile_s = model.compile(record)
     if measured is not None:
@@ -239,3 +258,7 @@ def demo(
 
 def main():  # pragma: no cover
     sys.exit(app())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -7,6 +7,7 @@ effect. Layout::
     description: 12 m city bus ...
     slots: {drivetrain: efficiency_map}          # optional, defaults per slot
     contributions: [aero_drag, rolling_resistance, road_grade, ...]
+    with: [my_effects.py:headwind]               # a user's effects (path beside this file)
     params: {vehicle_body: {curb_mass_kg: 13000}, ...}
     tables: {rint_battery: {ocv_cell_v: lfp_a123}}
     bounds: {vehicle_body: {curb_mass_kg: [12000, 14500]}}   # may only narrow
@@ -46,10 +47,15 @@ class Service:
     layover_charger_kw: float | None = None  # None: the charger's power parameter
     charge_at_layovers: bool = True
     depot_charger_kw: float | None = None
+    passenger_profile: dict | None = None  # {hour of day: passengers}, linear in between
+
+
+LOAD_CATEGORIES = {"driver": 0.0, "half": 0.5, "full": 1.0}
+"""The paper's passenger-load categories as ``passenger_load.load_frac``."""
 
 
 _TOP_KEYS = {"name", "description", "slots", "contributions", "params", "tables", "bounds",
-             "service"}
+             "service", "with"}
 _OVERLAY_KEYS = _TOP_KEYS | {"with", "without", "base", "calibration"}
 
 
@@ -120,7 +126,7 @@ class BusConfig:
             _check_keys(service, known, f"{source}: service")
             new.service = Service(**{**asdict(new.service), **service})
         for item in data.get("with") or []:
-            new = new.with_effect(item)
+            new = new.with_effect(_relative_to(item, source))
         for item in data.get("without") or []:
             new = new.without_effect(item)
         return new
@@ -129,6 +135,17 @@ class BusConfig:
         return {"name": self.name, "description": self.description, "slots": self.slots,
                 "contributions": self.contributions, "params": self.params,
                 "tables": self.tables, "bounds": self.bounds, "service": asdict(self.service)}
+
+
+def _relative_to(item: str, source: str) -> str:
+    """``file.py:Name`` with a relative file found beside the config that names it."""
+    if ".py:" not in item:
+        return item
+    file, name = item.split(":", 1)
+    beside = Path(source).parent / file
+    if not Path(file).is_absolute() and not Path(file).exists() and beside.exists():
+        return f"{beside}:{name}"
+    return item
 
 
 def _mapping(value, what: str, source: str) -> dict:

@@ -180,6 +180,7 @@ def service_day(cycle: Cycle | str, hours: float, dt_s: float = 0.1,
     After each lap, once ``layover_every_min`` of driving has passed since the last layover,
     the bus stands ``layover_min`` at a charger of ``layover_charger_kw`` (NaN rating: the
     charger's own power parameter) when ``charge_at_layovers``. The day is cut at ``hours``.
+    A ``passenger_profile`` ({hour of day: passengers}) sets the passengers over the day.
     """
     service = service or Service()
     if isinstance(cycle, str):
@@ -212,6 +213,11 @@ def service_day(cycle: Cycle | str, hours: float, dt_s: float = 0.1,
     channels = {k: np.concatenate([p[k] for p in pieces])[:n_total] for k in pieces[0]}
     ambient = service.ambient_degc if ambient_degc is None else ambient_degc
     channels["ambient_degc"] = np.full(n_total, float(ambient))
+    if service.passenger_profile:
+        hours_of_day = sorted(float(h) for h in service.passenger_profile)
+        counts = [float(service.passenger_profile[h]) for h in sorted(service.passenger_profile)]
+        clock = (service.start_time_h + np.arange(n_total) * dt_s / 3600.0) % 24.0
+        channels["passenger_count"] = np.interp(clock, hours_of_day, counts)
     notes = list(cycle.notes) + _resample_note(cycle, dt_s) + [
         f"{hours:g} h of {cycle.name} laps with {layovers} layovers of {service.layover_min:g} min"
         f" every {service.layover_every_min:g} min of driving"

@@ -46,6 +46,7 @@ class Profile:
     start_time_h: float = 0.0
     measured: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
         if "speed_ref_mps" not in self.channels:
@@ -78,9 +79,24 @@ class Profile:
         return float(np.sum(0.5 * (v[1:] + v[:-1])) * self.dt_s)
 
     def channel(self, name: str) -> np.ndarray:
-        """A channel as given, derived from others, or filled with its default."""
+        """A channel as given, derived from others, or filled with its default.
+
+        Derived channels are computed once: treat a profile as immutable (``with_channels``
+        makes a changed copy)."""
         if name in self.channels:
             return self.channels[name]
+        if name not in self._cache:
+            self._cache[name] = self._derive(name)
+        return self._cache[name]
+
+    def stacked(self, names: tuple[str, ...]) -> np.ndarray:
+        """(len(names), n_steps) array of channels, computed once per set of names."""
+        key = ("stacked", names)
+        if key not in self._cache:
+            self._cache[key] = np.stack([self.channel(n) for n in names])
+        return self._cache[key]
+
+    def _derive(self, name: str) -> np.ndarray:
         v = self.channels["speed_ref_mps"]
         if name == "accel_ref_mps2":
             a = np.zeros_like(v)

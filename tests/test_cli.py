@@ -80,3 +80,15 @@ def test_effects_and_cycles_listings():
     assert code == 0 and "drag_coef" in out and "cabin_hvac" in out
     code, out = invoke("cycles")
     assert code == 0 and "sort2" in out and "manhattan" in out
+
+
+def test_load_categories(tmp_path):
+    figures = {}
+    for load in ("driver", "full"):
+        code, out = invoke("simulate", "--cycle", "sort1", "--hours", "0.3", "--load", load,
+                           "--json", tmp_path / f"{load}.json")
+        assert code == 0, out
+        figures[load] = json.loads((tmp_path / f"{load}.json").read_text())["kwh_per_km"]
+    assert figures["full"] > figures["driver"]
+    code, out = invoke("simulate", "--load", "heavy")
+    assert code == 2 and "driver, half, full" in out

@@ -56,3 +56,18 @@ def test_slot_removal_and_table_presets(bus12):
     assert ocv[3 + 20] == pytest.approx(3.743)  # 50 % SoC on the 2.5 % grid
     with pytest.raises(ConfigError, match="Unknown preset of table 'ocv_cell_v' 'lfp'"):
         load_bus("12m", overlays=[{"tables": {"rint_battery": {"ocv_cell_v": "lfp"}}}]).build()
+
+
+def test_bus_config_names_a_users_effect_file_beside_it(tmp_path):
+    (tmp_path / "extra_load.py").write_text(
+        "from ebus_env import Param, effect\n\n"
+        "@effect('roof_fans', sink='dc_load_w', params=[\n"
+        "    Param('fan_power_w', 300.0, 'W', (0.0, 2000.0), 'Roof fans')])\n"
+        "def roof_fans(fan_power_w):\n"
+        "    return fan_power_w\n")
+    path = write(tmp_path, "contributions: [aero_drag, rolling_resistance]\n"
+                           "with: [extra_load.py:roof_fans]\n"
+                           "params: {roof_fans: {fan_power_w: 450}}\n")
+    model = load_bus(path).build()
+    assert model.has_effect("roof_fans")
+    assert model.params[model.param_index("roof_fans.fan_power_w")] == 450.0

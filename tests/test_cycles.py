@@ -60,3 +60,12 @@ def test_scaling_to_a_mean_speed():
     day = service_day(cycle, 1.0, DT, Service(charge_at_layovers=False, layover_min=0),
                       mean_speed_kmh=25.0)
     assert day.distance_m / 1000 == pytest.approx(25.0, rel=0.01)
+
+
+def test_passenger_profile_over_the_day():
+    service = Service(start_time_h=6.0, passenger_profile={6: 10, 8: 80, 10: 20})
+    day = service_day("sort2", 4.0, DT, service)
+    pax = day.channels["passenger_count"]
+    clock = day.channel("time_of_day_h")
+    assert pax[0] == 10 and pax[np.argmin(np.abs(clock - 8.0))] == pytest.approx(80, abs=0.1)
+    assert pax[np.argmin(np.abs(clock - 9.0))] == pytest.approx(50, abs=0.1)

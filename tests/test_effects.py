@@ -270,3 +270,19 @@ def test_ocv_table_reproduced_exactly_on_its_breakpoints():
     table = data.encode("ocv")
     for soc, volts in zip(data.x, data.y, strict=True):
         assert lookup1(table, soc) == pytest.approx(volts, abs=1e-12)
+
+
+def test_effects_in_a_batched_run_match_their_equations(model12):
+    """The same equations hold per member when a batch of parameter sets runs at once."""
+    from tests.conftest import constant_profile
+
+    coefs = np.array([0.5, 0.7, 0.9])
+    loads = np.array([0.0, 0.5, 1.0])
+    rows = [{"aero_drag.drag_coef": c, "passenger_load.load_frac": f}
+            for c, f in zip(coefs, loads, strict=True)]
+    batch = model12.simulate_batch(constant_profile(10.0, 60.0), rows, soc_start=0.9,
+                                   record=["aero_drag_n", "speed_mps", "mass_kg"], record_every=1)
+    v = batch.record("speed_mps")
+    np.testing.assert_allclose(batch.record("aero_drag_n"),
+                               0.5 * 1.2 * coefs[:, None] * 7.5 * v**2, rtol=1e-5)
+    np.testing.assert_allclose(batch.record("mass_kg")[:, 0], 13000 + 68 * 85 * loads, rtol=1e-6)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +24,7 @@ HEADWIND = f"{ROOT}/tests/user_effects/headwind.py:headwind"
 @pytest.fixture(scope="module")
 def mixed_profile(bus12):
     """20 minutes of SORT 2 with a layover on the charger, on a cold morning."""
-    service = bus12.service
-    service.layover_every_min, service.layover_min = 8.0, 2.0
+    service = replace(bus12.service, layover_every_min=8.0, layover_min=2.0)
     return service_day("sort2", 20 / 60, DT, service, ambient_degc=2.0)
 
 
@@ -71,14 +71,15 @@ def test_advancing_in_chunks_equals_one_run(model12, mixed_profile):
     """What the vector env does: N buses, k steps at a time, from their saved state."""
     inputs = model12.input_array(mixed_profile)
     params = model12.param_matrix(candidate_rows(model12, 3))
-    first = {n: inputs[0, i] for i, n in enumerate(model12.input_names)}
+    first = {n: inputs[i, 0] for i, n in enumerate(model12.input_names)}
     state0 = np.array([model12.initial_state(p, first, 0.85) for p in params])
     whole = state0.copy()
-    acc_whole = model12.run(params, whole, inputs, n_steps=len(inputs))
+    n = inputs.shape[1]
+    acc_whole = model12.run(params, whole, inputs, n_steps=n)
     chunked = state0.copy()
     acc = model12.new_accumulators(3)
     step = 0
-    for k in (600, 1, 3000, len(inputs) - 3601):
+    for k in (600, 1, 3000, n - 3601):
         model12.run(params, chunked, inputs, step0=np.full(3, step), n_steps=k, acc=acc)
         step += k
     np.testing.assert_array_equal(chunked, whole)
@@ -88,7 +89,7 @@ def test_advancing_in_chunks_equals_one_run(model12, mixed_profile):
 def test_buses_on_different_profiles_in_one_call(model12, bus12):
     days = [service_day(c, 0.2, DT, bus12.service) for c in ("sort1", "sort2", "manhattan")]
     n = min(d.n_steps for d in days)
-    inputs = np.stack([model12.input_array(d)[:n] for d in days])
+    inputs = np.stack([model12.input_array(d)[:, :n] for d in days])
     params = np.tile(model12.params, (3, 1))
     states = np.array([model12.initial_state(model12.params, {"speed_ref_mps": 0.0}, 0.9)
                        for _ in days])

@@ -17,7 +17,7 @@ steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in place
 
 * ``params`` (n_bus, n_params): parameter values, one row per bus (or per candidate);
 * ``states`` (n_bus, n_states): updated to the state after the last step;
-* ``inputs`` (n_sets, n_rows, n_inputs): input channels per step;
+* ``inputs`` (n_sets, n_inputs, n_rows): input channels, one contiguous row each;
 * ``acc`` (n_bus, n_acc): energies [J] are added, extremes updated;
 * ``record_out`` (n_bus, n_records, len(record_sel)): trace signals ``record_sel`` written every
   ``record_every`` steps when ``record_every > 0`` (float32).
@@ -298,7 +298,7 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, record: bo
     out.append(f"{ind3}row = step0[b] + k")
     out.append(f"{ind3}time_s = row * dt_s")
     for j, channel in enumerate(layout.inputs):
-        out.append(f"{ind3}{channel} = inp[row, {j}]")
+        out.append(f"{ind3}{channel} = inp[{j}, row]")
     out += [ind3 + line for line in body]
     for j, (_, expr) in enumerate(sums):
         out.append(f"{ind3}s{j} += {expr}")

@@ -144,16 +144,14 @@ class Model:
 
     # -- inputs and states ------------------------------------------------------------------
     def input_array(self, profile: Profile) -> np.ndarray:
-        """(n_steps, n_inputs) input array of a profile, channels in ``input_names`` order."""
+        """(n_inputs, n_steps) input array of a profile, channels in ``input_names`` order."""
         if abs(profile.dt_s - self.dt_s) > 1e-12:
             raise ConfigError(
                 f"Profile '{profile.name}' is on a {profile.dt_s} s grid but the model steps "
                 f"{self.dt_s} s; build the profile with dt_s={self.dt_s}.")
-        columns = [profile.channel(name) for name in self.input_names]
-        array = np.column_stack(columns).astype(float)
         if not np.all(np.isfinite(profile.channels["speed_ref_mps"])):
             raise ConfigError(f"Profile '{profile.name}': reference speed has NaN values.")
-        return np.ascontiguousarray(array)
+        return profile.stacked(tuple(self.input_names))
 
     def initial_state(self, params: np.ndarray, first_inputs: Mapping[str, float],
                       soc_start: float | None = None, **overrides: float) -> np.ndarray:
@@ -198,7 +196,7 @@ class Model:
         t0 = time.perf_counter()
         n_trace = len(self.trace_names)
         self.run(self.params[None, :], self.initial_state(self.params, {})[None, :],
-                 np.zeros((1, 2, len(self.input_names))), n_steps=1,
+                 np.zeros((1, len(self.input_names), 2)), n_steps=1,
                  record_every=1 if record else 0,
                  record_out=np.zeros((1, 1, n_trace), np.float32) if record else None)
         return time.perf_counter() - t0
@@ -215,7 +213,7 @@ class Model:
         ----------
         params : (N, n_params)
         states : (N, n_states)
-        inputs : (n_rows, n_inputs) shared by all buses, or (n_sets, n_rows, n_inputs)
+        inputs : (n_inputs, n_rows) shared by all buses, or (n_sets, n_inputs, n_rows)
         input_set : (N,) which input set each bus reads (default: 0)
         step0 : (N,) first input row of each bus (default: 0)
         n_steps : steps to advance (default: all rows after ``step0``)
@@ -233,12 +231,12 @@ class Model:
         input_set = np.zeros(n_bus, np.int64) if input_set is None else np.asarray(input_set, np.int64)
         step0 = np.zeros(n_bus, np.int64) if step0 is None else np.asarray(step0, np.int64)
         if n_steps is None:
-            n_steps = int(inputs.shape[1] - step0.max())
-        if np.any(step0 + n_steps > inputs.shape[1]) or np.any(step0 < 0):
-            raise ValueError(f"Rows step0..step0+{n_steps} run past the {inputs.shape[1]} input rows.")
+            n_steps = int(inputs.shape[2] - step0.max())
+        if np.any(step0 + n_steps > inputs.shape[2]) or np.any(step0 < 0):
+            raise ValueError(f"Rows step0..step0+{n_steps} run past the {inputs.shape[2]} input rows.")
         if states.shape != (n_bus, len(self.state_names)):
             raise ValueError(f"states must have shape ({n_bus}, {len(self.state_names)}).")
-        if inputs.shape[2] != len(self.input_names):
+        if inputs.shape[1] != len(self.input_names):
             raise ValueError(f"inputs must have {len(self.input_names)} channels: {self.input_names}.")
         if acc is None:
             acc = self.new_accumulators(n_bus)
@@ -271,7 +269,7 @@ class Model:
         return acc
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
-        return dict(zip(self.input_names, inputs[0], strict=True))
+        return dict(zip(self.input_names, inputs[:, 0], strict=True))
 
     def simulate(self, profile: Profile, params: Mapping[str, float] | np.ndarray | None = None,
                  soc_start: float | None = None, record: bool = True, record_every: int = 1,
@@ -299,7 +297,7 @@ class Model:
             soc_start = _first_measured_soc(profile)
         state = self.initial_state(vec, self._first_inputs(inputs), soc_start, **initial)
         states = state[None, :].copy()
-        n = inputs.shape[0]
+        n = inputs.shape[1]
         record_out = None
         if record:
             record_out = np.zeros((1, -(-n // record_every), len(self.trace_names)), np.float32)
@@ -329,7 +327,7 @@ class Model:
         states0 = np.array([self.initial_state(row, first, soc_start) for row in matrix])
         states = states0.copy()
         sel = np.array([self.trace_names.index(n) for n in record], dtype=np.int64)
-        n = inputs.shape[0]
+        n = inputs.shape[1]
         out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
         t0 = time.perf_counter()
         acc = self.run(matrix, states, inputs, record_every=record_every if len(sel) else 0,

@@ -1,0 +1,31 @@
+# Two commands do all set-up on a fresh machine (Python 3.11):
+#   make demo    install into .venv and run the main job on bundled data -> report/index.html
+#   make test    install into .venv and run the test suite
+# Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
+
+PYTHON ?= python3
+VENV   := .venv
+PIP    := $(VENV)/bin/pip install -c constraints.txt
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench lint clean
+
+$(STAMP): pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) -e ".[rl,dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/ebus demo --out report
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -n 2
+
+bench: $(STAMP)
+	$(VENV)/bin/python benchmarks/bench_core.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check ebus_env tests benchmarks
+
+clean:
+	rm -rf $(VENV) report .pytest_cache
