@@ -81,14 +81,16 @@ def test_static_rcd(fn):
     assert fn(0.0, 1.5) == (1.0, 1.0)
 
 
-def test_auxiliaries_schedule():
+def test_auxiliaries_and_schedule():
     from ebus_env.effects.tables import TableData
 
-    table = TableData((0, 7, 8, 9, 24), (0, 0, 2000, 0, 0)).encode("schedule_w")
     for fn in both("auxiliaries"):
-        assert fn(3.0, 4000.0, table) == 4000.0
-        assert fn(8.0, 4000.0, table) == 6000.0
-        assert fn(7.5, 4000.0, table) == pytest.approx(5000.0)
+        assert fn(4000.0) == 4000.0
+    table = TableData((0, 7, 8, 9, 24), (0, 0, 2000, 0, 0)).encode("schedule_w")
+    for fn in both("aux_schedule"):
+        assert fn(3.0, 1.0, table) == 0.0
+        assert fn(8.0, 1.0, table) == 2000.0
+        assert fn(7.5, 2.0, table) == pytest.approx(2000.0)
 
 
 CABIN = dict(setpoint_degc=20.0, deadband_k=1.0, ua_w_per_k=400.0, heat_capacity_j_per_k=1e6,
@@ -286,3 +288,11 @@ def test_effects_in_a_batched_run_match_their_equations(model12):
     np.testing.assert_allclose(batch.record("aero_drag_n"),
                                0.5 * 1.2 * coefs[:, None] * 7.5 * v**2, rtol=1e-5)
     np.testing.assert_allclose(batch.record("mass_kg")[:, 0], 13000 + 68 * 85 * loads, rtol=1e-6)
+
+
+def test_tables_off_any_small_grid_are_approximated_not_exploded():
+    from ebus_env.effects.tables import MAX_POINTS, encode1
+
+    table = encode1("t", [0.0, 5.5, 5.5001, 24.0], [1.0, 1.0, 0.0, 0.0])
+    assert int(table[2]) == MAX_POINTS
+    assert lookup1(table, 2.0) == 1.0 and lookup1(table, 10.0) == 0.0

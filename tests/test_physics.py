@@ -174,3 +174,19 @@ def test_battery_ageing_drains_faster(model12, sort2_hour):
     drop_new = new["soc_start_pct"] - new["soc_end_pct"]
     drop_aged = aged["soc_start_pct"] - aged["soc_end_pct"]
     assert drop_aged == pytest.approx(drop_new / 0.8, rel=0.02)
+
+
+def test_auxiliary_schedule_follows_the_clock(bus12, sort2_hour):
+    bus = bus12.without_effect("cabin_hvac").with_effect("aux_schedule")
+    schedule = {"x": [0, 5.5, 5.6, 24], "y": [1000, 1000, 0, 0]}  # on until 05:30, off by 05:36
+    model = load_bus_overlay(bus, {"tables": {"aux_schedule": {"schedule_w": schedule}}})
+    result = model.simulate(sort2_hour, soc_start=0.9)  # the day starts at 05:00
+    load = result.trace("aux_schedule_w")
+    clock = sort2_hour.channel("time_of_day_h")
+    assert np.all(load[clock < 5.49] == pytest.approx(1000.0))
+    assert np.all(load[clock > 5.6] == 0.0)
+    assert result.summary()["breakdown_kwh"]["aux_schedule"] == pytest.approx(0.55, rel=0.01)
+
+
+def load_bus_overlay(bus, overlay):
+    return bus.overlay(overlay).build()

@@ -5,19 +5,31 @@ from __future__ import annotations
 from ebus_env.effects.base import Param, effect
 from ebus_env.effects.tables import Table, TableData, lookup1
 
-SCHEDULE = Table(
-    "schedule_w", "W", "Extra auxiliary load by time of day [h] (added to the base load)",
-    presets={
-        "flat": TableData((0.0, 24.0), (0.0, 0.0), source="no schedule"),
-    },
-    default="flat",
-)
 
-
-@effect("auxiliaries", sink="dc_load_w", drivers=("time_of_day_h",), tables=[SCHEDULE], params=[
+@effect("auxiliaries", sink="dc_load_w", params=[
     Param("base_power_w", 4000.0, "W", (0.0, 30000.0), "Constant auxiliary load P_aux,0",
           "12 m: 3-5 kW, 18 m: 5-7 kW; TransitBus 5 kW (physics.md 3.2)"),
 ])
-def auxiliaries(time_of_day_h, base_power_w, schedule_w):
-    """Auxiliary load: P_aux = P_aux,0 + P_sched(time of day) [W]."""
-    return base_power_w + lookup1(schedule_w, time_of_day_h)
+def auxiliaries(base_power_w):
+    """Constant auxiliary load: P_aux = P_aux,0 [W]."""
+    return base_power_w
+
+
+SCHEDULE = Table(
+    "schedule_w", "W", "Auxiliary load by time of day [h] (x), added to the constant load",
+    presets={
+        "evening_lights": TableData((0.0, 6.0, 7.0, 16.0, 17.0, 22.0, 23.0, 24.0),
+                                    (500.0, 500.0, 0.0, 0.0, 500.0, 500.0, 500.0, 500.0),
+                                    source="example: interior and exterior lights in the dark"),
+    },
+    default="evening_lights",
+)
+
+
+@effect("aux_schedule", sink="dc_load_w", drivers=("time_of_day_h",), tables=[SCHEDULE], params=[
+    Param("scale", 1.0, "1", (0.0, 5.0), "Factor on the scheduled load"),
+])
+def aux_schedule(time_of_day_h, scale, schedule_w):
+    """Auxiliary load that follows the time of day: P = scale * P_sched(t) [W] (a table in the
+    bus config, ``tables: {aux_schedule: {schedule_w: {x: [hours], y: [watts]}}}``)."""
+    return scale * lookup1(schedule_w, time_of_day_h)

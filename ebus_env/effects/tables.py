@@ -10,8 +10,10 @@ encoded as one flat float64 array so that an effect can read it with :func:`look
 (the inverse steps save a division per lookup in the hot loop).
 
 Inputs outside the grid are clamped to the edge value. Tables given on a non-uniform grid are
-resampled linearly onto the finest uniform grid that contains every breakpoint when one exists
-(e.g. the OCV tables' 2.5 %-SoC steps), so that they are reproduced exactly.
+resampled linearly onto the coarsest uniform grid that contains every breakpoint (e.g. the OCV
+tables' 2.5 %-SoC steps), so that they are reproduced exactly; when that grid would need more
+than ``MAX_POINTS`` points, onto ``MAX_POINTS`` points (breakpoints then move by up to
+1/2000 of the table's span).
 """
 
 from __future__ import annotations
@@ -24,38 +26,29 @@ import numpy as np
 
 _HEADER_1D = 3
 _HEADER_2D = 6
+MAX_POINTS = 2001
+"""Largest uniform grid a 1-D table is resampled onto (breakpoints off it are approximated)."""
 
 
 @numba.njit(error_model="numpy", inline="always")
 def lookup1(table, x):
-    """Linear interpolation in an encoded 1-D table, clamped at the ends."""
-    n = int(table[2])
-    u = (x - table[0]) * table[1]
-    if u <= 0.0:
-        return table[_HEADER_1D]
-    if u >= n - 1:
-        return table[_HEADER_1D + n - 1]
-    i = int(u)
+    """Linear interpolation in an encoded 1-D table, clamped at the ends.
+
+    Written without branches (clamp, then load) so that loops over many buses vectorise."""
+    last = table[2] - 1.0
+    u = min(max((x - table[0]) * table[1], 0.0), last)
+    i = min(int(u), int(last) - 1)
     f = u - i
     return table[_HEADER_1D + i] * (1.0 - f) + table[_HEADER_1D + i + 1] * f
 
 
 @numba.njit(error_model="numpy", inline="always")
 def lookup2(table, x, y):
-    """Bilinear interpolation in an encoded 2-D table, clamped at the edges."""
-    nx = int(table[2])
+    """Bilinear interpolation in an encoded 2-D table, clamped at the edges (branch-free)."""
     ny = int(table[5])
-    u = (x - table[0]) * table[1]
-    w = (y - table[3]) * table[4]
-    if u < 0.0:
-        u = 0.0
-    elif u > nx - 1:
-        u = nx - 1.0
-    if w < 0.0:
-        w = 0.0
-    elif w > ny - 1:
-        w = ny - 1.0
-    i = min(int(u), nx - 2)
+    u = min(max((x - table[0]) * table[1], 0.0), table[2] - 1.0)
+    w = min(max((y - table[3]) * table[4], 0.0), table[5] - 1.0)
+    i = min(int(u), int(table[2]) - 2)
     j = min(int(w), ny - 2)
     fu = u - i
     fw = w - j
@@ -79,8 +72,8 @@ def _uniform_step(x: np.ndarray) -> float:
         g = Fraction(np.gcd(g.numerator * f.denominator, f.numerator * g.denominator),
                      g.denominator * f.denominator)
     step = float(g)
-    if (x[-1] - x[0]) / step > 4000:
-        step = float(np.min(steps)) / 2.0
+    if (x[-1] - x[0]) / step > MAX_POINTS - 1:  # no exact grid of reasonable size: approximate
+        step = (x[-1] - x[0]) / (MAX_POINTS - 1)
     return step
 
 

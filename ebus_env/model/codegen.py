@@ -1,9 +1,11 @@
 """Generate, compile and cache the model's step loop.
 
 The chosen effects are stitched into the skeleton of :mod:`ebus_env.model.template` as one flat
-Python function, ``run``, that loops over buses and time steps. Effect functions are called by
-name with their parameters unpacked into locals, so numba compiles (and inlines) everything into
-one machine-code loop: a user's effect runs at the same speed as a built-in one.
+Python function that loops over buses and time steps. Effect functions are called by name with
+their parameters unpacked into locals, so numba compiles (and inlines) everything into one
+machine-code loop: a user's effect runs at the same speed as a built-in one. Two variants are
+generated from the same step: ``run`` (no recording: nothing beyond the states and energy sums
+stays live, which keeps the loop in registers) and ``run_record`` (keeps a trace).
 
 The source is written to ``$EBUS_CACHE_DIR`` (default ``~/.cache/ebus_env/kernels``) under a
 name that hashes the source, the effects' source files and the library versions, and compiled
@@ -11,16 +13,16 @@ with numba's on-disk cache: a second process with the same model loads machine c
 of compiling. The same source executed as plain Python (``python_kernel``) is the reference the
 tests compare the compiled loop with.
 
-``run(params, states, inputs, input_set, step0, n_steps, dt_s, record_every, record_sel,
-record_out, acc, bus_lo, bus_hi)`` advances buses ``bus_lo..bus_hi-1``, each by ``n_steps``
+``run[_record](params, states, inputs, input_set, step0, n_steps, dt_s, record_every,
+record_sel, record_out, acc, bus_lo, bus_hi)`` advances buses ``bus_lo..bus_hi-1``, each by ``n_steps``
 steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in place:
 
 * ``params`` (n_bus, n_params): parameter values, one row per bus (or per candidate);
 * ``states`` (n_bus, n_states): updated to the state after the last step;
 * ``inputs`` (n_sets, n_inputs, n_rows): input channels, one contiguous row each;
 * ``acc`` (n_bus, n_acc): energies [J] are added, extremes updated;
-* ``record_out`` (n_bus, n_records, len(record_sel)): trace signals ``record_sel`` written every
-  ``record_every`` steps when ``record_every > 0`` (float32).
+* ``record_out`` (n_bus, n_records, len(record_sel)): ``run_record`` writes the trace signals
+  ``record_sel`` every ``record_every`` steps (float32).
 """
 
 from __future__ import annotations
@@ -113,9 +115,6 @@ class _Writer:
                         f"State '{state.name}' of effect '{eff.name}' is already defined.")
                 self.states.append(state.name)
         self.available |= set(self.states)
-
-    def emit(self, text: str) -> None:
-        self.lines.extend(textwrap.dedent(text).strip("\n").splitlines())
 
     def provide(self, names, who: str) -> None:
         for name in names:
@@ -226,7 +225,7 @@ def generate(comp: Composition) -> Layout:
     for state in w.states:
         if state + "_next" not in w.available:
             raise CompositionError(f"No effect computes the next value of state '{state}'.")
-    for name in ("speed_ref_mps", "accel_ref_mps2", "charger_connected"):  # read by the skeleton
+    for name in ("speed_ref_mps", "accel_ref_mps2"):  # read by the skeleton
         if name not in w.read_inputs:
             w.read_inputs.append(name)
 
@@ -246,9 +245,9 @@ def generate(comp: Composition) -> Layout:
     sums += [(term, f"{term}_w") for term in layout.load_terms]
     sums += [("battery_ohmic_loss", "battery_loss_w"), ("coulombic_loss", "coulombic_loss_w"),
              ("battery_shortfall", "battery_shortfall_w"), ("charger", "charger_power_w"),
-             ("grid", "grid_power_w"), ("connected_time", "charger_connected")]
+             ("grid", "grid_power_w")]
     extremes = [("peak_grid", "grid_power_w", "max"), ("soc_min", "soc_frac", "min"),
-                ("soc_max", "soc_frac", "max"), ("max_behind", "distance_behind_m", "max")]
+                ("max_behind", "distance_behind_m", "max")]
     layout.accumulators = [(n, "sum") for n, _ in sums] + [(n, m) for n, _, m in extremes]
 
     header = _header(comp, layout)

@@ -23,8 +23,8 @@ def _state(model, vector, name):
 
 
 def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
-              duration_s: float) -> dict:
-    """Figures of one run from its accumulators and its first/last state."""
+              profile) -> dict:
+    """Figures of one run from its accumulators, its first/last state and its profile."""
     a = {k: float(v) for k, v in zip(model.accumulator_names, acc, strict=True)}
     kwh = {k: float(v) / J_PER_KWH for k, v in a.items()}
     road = model.layout.road_terms
@@ -52,7 +52,7 @@ def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
     breakdown["charger_loss"] = kwh["charger_loss"]
     summary = {
         "distance_km": distance_km,
-        "duration_h": duration_s / 3600.0,
+        "duration_h": profile.duration_s / 3600.0,
         "battery_energy_kwh": kwh["battery_chemical"],
         "consumed_energy_kwh": consumed,
         "kwh_per_km": consumed / distance_km if distance_km > 0 else float("nan"),
@@ -61,7 +61,8 @@ def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
         "soc_min_pct": 100.0 * min(a["soc_min"], _state(model, final, "soc_frac")),
         "peak_grid_kw": max(a["peak_grid"], 0.0) / 1e3,
         "grid_energy_kwh": kwh["grid"],
-        "charging_time_h": a["connected_time"] / 3600.0,
+        "charging_time_h": float(np.sum(profile.channel("charger_connected") > 0.5))
+        * profile.dt_s / 3600.0,
         "max_behind_m": max(a["max_behind"], 0.0),
         "breakdown_kwh": breakdown,
     }
@@ -89,7 +90,7 @@ class SimulationResult:
         breakdown by effect (``breakdown_kwh``) and, when the profile carries measured SoC, the
         SoC error (``soc_rmse_pct``, ``soc_max_abs_error_pct``, ``soc_end_error_pct``)."""
         s = summarize(self.model, self.accumulators, self.initial_state, self.final_state,
-                      self.profile.duration_s)
+                      self.profile)
         s.update(self.soc_error())
         s["wall_time_s"] = self.wall_time_s
         return s
@@ -169,7 +170,7 @@ class BatchResult:
 
     def summary(self, i: int) -> dict:
         return summarize(self.model, self.accumulators[i], self.initial_states[i],
-                         self.final_states[i], self.profile.duration_s)
+                         self.final_states[i], self.profile)
 
     def final(self, state: str) -> np.ndarray:
         return self.final_states[:, self.model.state_names.index(state)]
