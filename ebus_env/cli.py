@@ -51,6 +51,24 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
     return out
 
 
+def _load_logs(paths, model, params, columns, gaps, fill, check_units, console):
+    """Profiles of measured logs, with the loader's report printed."""
+    from ebus_env.io.measured import load_log
+
+    vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
+        if model.has_effect("vehicle_body") else None
+    profiles = []
+    for path in paths:
+        log = load_log(path, model.dt_s, columns=columns, gaps=gaps, fill=fill,
+                       check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
+        profiles += log.profiles
+        for line in log.report.changes:
+            console.print(f"[dim]loader ({Path(path).name}):[/] {line}", highlight=False)
+        for line in log.report.warnings + log.report.ignored:
+            console.print(f"[yellow]loader ({Path(path).name}):[/] {line}", highlight=False)
+    return profiles
+
+
 def _run(fn):
     """Run a command body, printing user errors without a traceback."""
     try:
@@ -133,17 +151,7 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
     record = out is not None or plot is not None or measured is not None
     compile_s = model.compile(record)
     if measured is not None:
-        from ebus_env.io.measured import load_log
-
-        vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
-            if model.has_effect("vehicle_body") else None
-        log = load_log(measured, dt_s, columns=columns, gaps=gaps, fill=fill,
-                       check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
-        profiles = log.profiles
-        for line in log.report.changes:
-            console.print(f"[dim]loader:[/] {line}", highlight=False)
-        for line in log.report.warnings + log.report.ignored:
-            console.print(f"[yellow]loader:[/] {line}", highlight=False)
+        profiles = _load_logs([measured], model, params, columns, gaps, fill, check_units, console)
     else:
         from ebus_env.cycles import service_day
 
@@ -180,6 +188,154 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
         if len(run.results) > 1:
             console.print("[yellow]plot shows the first segment only[/]")
         console.print(f"plot -> {plot}")
+
+
+@app.command()
+def calibrate(
+    logs: Annotated[list[Path], typer.Argument(help="Measured log(s) with SoC (CSV/Parquet)")],
+    bus: BusOpt = "12m",
+    params: Annotated[str | None, typer.Option(
+        help="Free parameters, comma-separated qualified names (default: the paper's seven)")]
+    = None,
+    fix: Annotated[list[str] | None, typer.Option(
+        help="Known value: effect.param=value (repeatable)")] = None,
+    range_: Annotated[list[str] | None, typer.Option(
+        "--range", help="Prior range: effect.param=low:high, narrowing its bounds (repeatable)")]
+    = None,
+    windowed: Annotated[bool, typer.Option(help="Windowed (online) tuning")] = False,
+    validate: Annotated[list[Path] | None, typer.Option(
+        help="Validation log(s): scored with the fitted parameters, never tuned on")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of iSOPT")] = 0,
+    population: Annotated[int | None, typer.Option(help="iSOPT population (default 11)")] = None,
+    iterations: Annotated[int | None, typer.Option(help="iSOPT iterations (default 50)")] = None,
+    categorical_load: Annotated[bool, typer.Option(
+        help="Passenger load only driver / half / full (the paper's categories)")] = False,
+    config: Annotated[str | None, typer.Option(
+        help="Calibration config (configs/calibration/NAME.yaml or a path)")] = None,
+    with_: WithOpt = None,
+    without: WithoutOpt = None,
+    overlay: OverlayOpt = None,
+    columns: Annotated[str | None, typer.Option(help="Column map preset, e.g. bmw_i3_tum")]
+    = None,
+    gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
+    fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
+    no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+    sparse: Annotated[bool, typer.Option(
+        help="The logs are sparse (speed, distance, SoC every few minutes)")] = False,
+    sparse_cycle: Annotated[str, typer.Option(help="Cycle that fills sparse intervals")] = "sort2",
+    out: Annotated[Path | None, typer.Option(help="Write the fitted values as a bus overlay")]
+    = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON")]
+    = None,
+    plot: Annotated[Path | None, typer.Option(help="Plot simulated vs measured SoC")] = None,
+    history: Annotated[Path | None, typer.Option(help="Write the convergence history (CSV)")]
+    = None,
+):
+    """Fit the model's uncertain parameters to measured SoC (iSOPT, offline or windowed)."""
+    _run(lambda: _calibrate(logs, bus, params, fix, range_, windowed, validate, seed, population,
+                            iterations, categorical_load, config, with_, without, overlay,
+                            columns, gaps, fill, not no_unit_check, sparse, sparse_cycle, out,
+                            json_path, plot, history))
+
+
+def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    from ebus_env.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        try:
+            name, value = item.split("=", 1)
+            low, high = (float(x) for x in value.split(":"))
+        except ValueError:
+            raise ConfigError(f"--range needs effect.param=low:high, got '{item}'.") from None
+        out[name.strip()] = (low, high)
+    return out
+
+
+def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, population,
+               iterations, categorical_load, config, with_, without, overlay, columns, gaps,
+               fill, check_units, sparse, sparse_cycle, out, json_path, plot, history):
+    from dataclasses import replace
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ebus_env.calibration import calibrate as run_calibration
+    from ebus_env.calibration.settings import load_calibration_config
+    from ebus_env.config import load_bus
+    from ebus_env.report import calibration_tables, write_json
+
+    console = _console()
+    cfg = load_calibration_config(config)
+    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    model = bus.build()
+    fixed = {**cfg.fixed, **_overrides(fix)}
+    base = model.param_vector(fixed)
+    if sparse:
+        from ebus_env.io.sparse import load_sparse_log
+
+        vmax = base[model.param_index("vehicle_body.max_speed_kmh")]
+        loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=columns,
+                                  max_speed_kmh=vmax) for p in [*logs, *(validate or [])]]
+        for path, log in zip([*logs, *(validate or [])], loaded, strict=True):
+            for line in log.report.changes:
+                console.print(f"[dim]sparse ({Path(path).name}):[/] {line}", highlight=False)
+        profiles = [log.profile for log in loaded[:len(logs)]]
+        check = [log.profile for log in loaded[len(logs):]]
+    else:
+        profiles = _load_logs(logs, model, base, columns, gaps, fill, check_units, console)
+        check = _load_logs(validate or [], model, base, columns, gaps, fill, check_units,
+                           console)
+    free = _split([params]) if params else cfg.params
+    settings = replace(cfg.isopt, seed=seed, **({"population": population} if population else {}),
+                       **({"iterations": iterations} if iterations else {}))
+    model.compile(sample=True)
+    total = settings.iterations if not windowed else None
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                  TextColumn("{task.completed}/{task.total}"),
+                  TextColumn("best cost {task.fields[best]:.5f}"),
+                  TextColumn("{task.fields[evals]} evaluations"),
+                  TimeElapsedColumn(), console=console, transient=False) as bar:
+        task = bar.add_task("windows" if windowed else "iSOPT", total=total, best=float("nan"),
+                            evals=0)
+
+        def progress(i, best, evals):
+            bar.update(task, completed=i, best=best, evals=evals)
+
+        result = run_calibration(
+            model, profiles, free, {**cfg.ranges, **_ranges(range_)}, fixed, settings,
+            validate=check or None, windowed=windowed,
+            categorical_load=categorical_load or cfg.categorical_load, progress=progress,
+            window_settings=cfg.windows, polish_starts=None if windowed else cfg.polish_starts)
+    for line in result.notes:
+        console.print(f"[yellow]note:[/] {line}", highlight=False)
+    for line in result.warnings:
+        console.print(f"[yellow]warning:[/] {line}", highlight=False)
+    params_table, fit_table = calibration_tables(result)
+    console.print(params_table)
+    console.print(fit_table)
+    console.print(f"[dim]{result.method}: {result.evaluations} evaluations, "
+                  f"{result.simulated_steps / 1e6:.1f} M bus-steps, {result.wall_time_s:.1f} s[/]",
+                  highlight=False)
+    if result.interrupted:
+        console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
+    if out:
+        result.write_overlay(out)
+        console.print(f"overlay -> {out}  (ebus simulate --bus {bus_name} --overlay {out})")
+    if json_path:
+        write_json(result.to_json(), json_path)
+        console.print(f"results -> {json_path}")
+    if plot:
+        result.plot(plot)
+        history_png = plot.with_name(plot.stem + "_history" + plot.suffix)
+        result.plot_history(history_png)
+        console.print(f"plots -> {plot}, {history_png}")
+    if history:
+        import pandas as pd
+
+        pd.DataFrame({"iteration": range(len(result.history.best_cost)),
+                      "evaluations": result.history.evaluations,
+                      "best_cost": result.history.best_cost}).to_csv(history, index=False)
+        console.print(f"history -> {history}")
 
 
 @app.command()

@@ -35,7 +35,10 @@ class Profile:
         Time of day at the first row [h].
     measured
         Measured signals on the same grid (``soc_frac``, ``battery_current_a``, ...), NaN where
-        the log has none.
+        the log has none; interpolated between the log's samples.
+    samples
+        For a measured signal, the rows where the log really has a sample (a 1 Hz log on a
+        0.1 s grid: every 10th row; a 5-minute log: every 3000th). Fits compare only there.
     notes
         Every change made to the data, in words.
     """
@@ -46,6 +49,7 @@ class Profile:
     start_time_h: float = 0.0
     measured: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    samples: dict[str, np.ndarray] = field(default_factory=dict)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
@@ -77,6 +81,16 @@ class Profile:
         """Distance of the reference speed [m] (trapezoidal)."""
         v = self.channels["speed_ref_mps"]
         return float(np.sum(0.5 * (v[1:] + v[:-1])) * self.dt_s)
+
+    def sample_rows(self, name: str = "soc_frac") -> np.ndarray:
+        """Rows where the measured signal ``name`` was really sampled (all finite rows when
+        the profile does not say)."""
+        if name in self.samples:
+            return self.samples[name]
+        values = self.measured.get(name)
+        if values is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(np.isfinite(values))
 
     def channel(self, name: str) -> np.ndarray:
         """A channel as given, derived from others, or filled with its default.
@@ -117,13 +131,16 @@ class Profile:
         for name, value in channels.items():
             new[name] = np.broadcast_to(np.asarray(value, dtype=float), (self.n_steps,)).copy()
         return Profile(new, self.dt_s, self.name, self.start_time_h, dict(self.measured),
-                       list(self.notes))
+                       list(self.notes), dict(self.samples))
 
     def slice(self, start: int, stop: int) -> Profile:
         """Rows ``start:stop`` as a profile of their own."""
+        samples = {k: rows[(rows >= start) & (rows < stop)] - start
+                   for k, rows in self.samples.items()}
         return Profile({k: v[start:stop] for k, v in self.channels.items()}, self.dt_s,
                        self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
-                       {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes))
+                       {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
+                       samples)
 
     def to_frame(self):
         """The profile as a pandas DataFrame (``time_s`` first)."""

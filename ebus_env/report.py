@@ -86,3 +86,42 @@ def _clean(value):
 def write_json(data: dict, path: str | Path) -> None:
     """JSON with NaN/inf written as null."""
     Path(path).write_text(json.dumps(_clean(data), indent=2) + "\n")
+
+
+FIT_ROWS = [
+    ("nrmse", "NRMSE (paper eq. 1)", "1", 4),
+    ("rmse_pct", "RMSE", "%-pts SoC", 3),
+    ("max_abs_error_pct", "max |error|", "%-pts SoC", 3),
+    ("correlation", "Pearson correlation", "1", 4),
+    ("final_soc_error_pct", "final-SoC error", "%-pts SoC", 3),
+    ("energy_error_pct", "energy error", "%", 2),
+]
+
+
+def calibration_tables(result):
+    """Two rich tables: fitted parameters (how well determined), and the fit."""
+    from rich.table import Table
+
+    params = Table(title="fitted parameters", header_style="bold")
+    for col in ("parameter", "value", "unit", "bounds", "determined by the data"):
+        params.add_column(col)
+    for name in result.free:
+        low, high = result.bounds[name]
+        d = result.determinacy.get(name)
+        how = "" if d is None else f"{d.status}: {d.low:.4g} .. {d.high:.4g}"
+        if d is not None and d.partners:
+            how += f" (trades off with {', '.join(d.partners)})"
+        params.add_row(name, f"{result.values[name]:.4g}", result.units[name],
+                       f"[{low:g}, {high:g}]", how)
+    fit = Table(title="fit of SoC", header_style="bold")
+    fit.add_column("figure")
+    fit.add_column("calibration", justify="right")
+    if result.validation:
+        fit.add_column("validation", justify="right")
+    fit.add_column("unit")
+    for key, label, unit, digits in FIT_ROWS:
+        row = [label, f"{result.fit.get(key, float('nan')):.{digits}f}"]
+        if result.validation:
+            row.append(f"{result.validation.get(key, float('nan')):.{digits}f}")
+        fit.add_row(*row, unit)
+    return params, fit

@@ -174,7 +174,7 @@ def test_second_process_loads_the_kernel_from_the_disk_cache(model12, tmp_path):
         from ebus_env.config import load_bus
         model = load_bus("12m").build()
         model.compile()
-        stats = model.kernel(False).stats
+        stats = model.kernel("run").stats
         print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,

@@ -423,11 +423,14 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
         channels["door_open"] = rs("door_open", values["door_open"], flag=True)
     if "solar_w_per_m2" in values:
         channels["solar_w_per_m2"] = rs("solar_w_per_m2", values["solar_w_per_m2"])
-    measured = {}
-    if "soc_pct" in values:
-        measured["soc_frac"] = resample(ts, values["soc_pct"][a:b] / 100.0, g, dt_s, "linear")
-    elif "soc_frac" in values:
-        measured["soc_frac"] = resample(ts, values["soc_frac"][a:b], g, dt_s, "linear")
+    measured, samples = {}, {}
+    soc = values["soc_pct"][a:b] / 100.0 if "soc_pct" in values else (
+        values["soc_frac"][a:b] if "soc_frac" in values else None)
+    if soc is not None:
+        measured["soc_frac"] = resample(ts, soc, g, dt_s, "linear")
+        # compare only where the log has a sample: the grid row nearest each sample time
+        rows = np.unique(np.clip(np.rint((ts - g[0]) / dt_s).astype(np.int64), 0, len(g) - 1))
+        samples["soc_frac"] = rows
     used = {speed_col, "grade_frac", "grade_pct", "ambient_degc", "passengers", "charging",
             "charger_kw", "door_open", "solar_w_per_m2", "soc_pct", "soc_frac"}
     for name_, data in values.items():
@@ -435,7 +438,7 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
             measured[name_] = rs(name_, data)
     label = name or Path(path).stem
     segment_start_h = (start_h + ts[0] / 3600.0) % 24.0
-    return Profile(channels, dt_s, label, segment_start_h, measured)
+    return Profile(channels, dt_s, label, segment_start_h, measured, samples=samples)
 
 
 def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:

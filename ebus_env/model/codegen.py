@@ -3,9 +3,10 @@
 The chosen effects are stitched into the skeleton of :mod:`ebus_env.model.template` as one flat
 Python function that loops over buses and time steps. Effect functions are called by name with
 their parameters unpacked into locals, so numba compiles (and inlines) everything into one
-machine-code loop: a user's effect runs at the same speed as a built-in one. Two variants are
+machine-code loop: a user's effect runs at the same speed as a built-in one. Three variants are
 generated from the same step: ``run`` (no recording: nothing beyond the states and energy sums
-stays live, which keeps the loop in registers) and ``run_record`` (keeps a trace).
+stays live, which keeps the loop in registers), ``run_record`` (keeps a trace) and
+``run_sample`` (calibration: only the SoC at the rows a log has samples, no energy sums).
 
 The source is written to ``$EBUS_CACHE_DIR`` (default ``~/.cache/ebus_env/kernels``) under a
 name that hashes the source, the effects' source files and the library versions, and compiled
@@ -13,16 +14,18 @@ with numba's on-disk cache: a second process with the same model loads machine c
 of compiling. The same source executed as plain Python (``python_kernel``) is the reference the
 tests compare the compiled loop with.
 
-``run[_record](params, states, inputs, input_set, step0, n_steps, dt_s, record_every,
-record_sel, record_out, acc, bus_lo, bus_hi)`` advances buses ``bus_lo..bus_hi-1``, each by ``n_steps``
-steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in place:
+``run[_record|_sample](params, states, inputs, input_set, step0, n_steps, dt_s, record_every,
+record_sel, record_out, sample_mask, acc, bus_lo, bus_hi)`` advances buses ``bus_lo..bus_hi-1``,
+each by ``n_steps`` steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in
+place:
 
 * ``params`` (n_bus, n_params): parameter values, one row per bus (or per candidate);
 * ``states`` (n_bus, n_states): updated to the state after the last step;
 * ``inputs`` (n_sets, n_inputs, n_rows): input channels, one contiguous row each;
 * ``acc`` (n_bus, n_acc): energies [J] are added, extremes updated;
 * ``record_out`` (n_bus, n_records, len(record_sel)): ``run_record`` writes the trace signals
-  ``record_sel`` every ``record_every`` steps (float32).
+  ``record_sel`` every ``record_every`` steps (float32); ``run_sample`` writes ``soc_frac`` in
+  column 0 at each row where ``sample_mask[row]`` is set, in order (the energy sums stay 0).
 """
 
 from __future__ import annotations
@@ -252,8 +255,9 @@ def generate(comp: Composition) -> Layout:
 
     header = _header(comp, layout)
     layout.source = "\n".join(
-        header + _loop("run", layout, w.lines, sums, extremes, record=False)
-        + _loop("run_record", layout, w.lines, sums, extremes, record=True)) + "\n"
+        header + _loop("run", layout, w.lines, sums, extremes, "plain")
+        + _loop("run_record", layout, w.lines, sums, extremes, "record")
+        + _loop("run_sample", layout, w.lines, sums, extremes, "sample")) + "\n"
     return layout
 
 
@@ -272,24 +276,27 @@ def _header(comp: Composition, layout: Layout) -> list[str]:
     return out
 
 
-def _loop(name: str, layout: Layout, body: list[str], sums, extremes, record: bool) -> list[str]:
-    """The loop over buses and steps; the recording variant keeps every signal live, which
-    costs registers, so the plain variant has no recording code at all."""
+def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str) -> list[str]:
+    """The loop over buses and steps (``mode``: plain, record or sample). The recording variant
+    keeps every signal live, which costs registers, so the others have no such code at all."""
     out = [
         "",
         "",
         f"def {name}(params, states, inputs, input_set, step0, n_steps, dt_s, record_every, "
-        "record_sel, record_out, acc, bus_lo, bus_hi):",
+        "record_sel, record_out, sample_mask, acc, bus_lo, bus_hi):",
         f"    buf = np.empty({len(layout.trace)})",
         "    for b in range(bus_lo, bus_hi):",
         "        inp = inputs[input_set[b]]",
     ]
     ind3 = " " * 12
+    if mode == "sample":
+        out.append("        r = 0")
     for j, (effect, pname) in enumerate(layout.params):
         out.append(f"        {_param_local(effect, pname)} = params[b, {j}]")
     for j, state in enumerate(layout.states):
         out.append(f"        {state} = states[b, {j}]")
-    for j, _ in enumerate(sums):
+    energy_sums = [] if mode == "sample" else sums  # calibration needs no energies
+    for j, _ in enumerate(energy_sums):
         out.append(f"        s{j} = 0.0")
     for j, _ in enumerate(extremes, start=len(sums)):
         out.append(f"        a{j} = acc[b, {j}]")
@@ -299,11 +306,15 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, record: bo
     for j, channel in enumerate(layout.inputs):
         out.append(f"{ind3}{channel} = inp[{j}, row]")
     out += [ind3 + line for line in body]
-    for j, (_, expr) in enumerate(sums):
+    for j, (_, expr) in enumerate(energy_sums):
         out.append(f"{ind3}s{j} += {expr}")
-    for j, (_, expr, mode) in enumerate(extremes, start=len(sums)):
-        out.append(f"{ind3}a{j} = {mode}(a{j}, {expr})")
-    if record:
+    for j, (_, expr, how) in enumerate(extremes, start=len(sums)):
+        out.append(f"{ind3}a{j} = {how}(a{j}, {expr})")
+    if mode == "sample":
+        out += [f"{ind3}if sample_mask[row]:",
+                f"{ind3}    record_out[b, r, 0] = soc_frac",
+                f"{ind3}    r += 1"]
+    if mode == "record":
         out.append(f"{ind3}if k % record_every == 0:")
         for j, signal in enumerate(layout.trace):
             out.append(f"{ind3}    buf[{j}] = {signal}")
@@ -317,7 +328,7 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, record: bo
     for j, state in enumerate(layout.states):
         out.append(f"        states[b, {j}] = {state}")
     # sums of powers over steps become energies once, at the end: sum(P) dt
-    for j, _ in enumerate(sums):
+    for j, _ in enumerate(energy_sums):
         out.append(f"        acc[b, {j}] += s{j} * dt_s")
     for j, _ in enumerate(extremes, start=len(sums)):
         out.append(f"        acc[b, {j}] = a{j}")
@@ -383,8 +394,9 @@ def _register_effects(comp: Composition) -> None:
 
 
 def compile_kernel(comp: Composition, layout: Layout):
-    """Import the generated module with its two loops jitted (``run_compiled``,
-    ``run_record_compiled``); each compiles, or loads from the disk cache, on first call."""
+    """Import the generated module with its loops jitted (``run_compiled``,
+    ``run_record_compiled``, ``run_sample_compiled``); each compiles, or loads from the disk
+    cache, on first call."""
     key = kernel_key(comp, layout.source)
     with _LOCK:
         _register_effects(comp)
@@ -399,7 +411,7 @@ def compile_kernel(comp: Composition, layout: Layout):
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        for name in ("run", "run_record"):
+        for name in ("run", "run_record", "run_sample"):
             jitted = numba.njit(cache=True, nogil=True, error_model="numpy")(getattr(module, name))
             setattr(module, name + "_compiled", jitted)
         sys.modules[module_name] = module
@@ -407,8 +419,8 @@ def compile_kernel(comp: Composition, layout: Layout):
 
 
 def python_kernel(comp: Composition, layout: Layout):
-    """The same two loops as plain Python (effects uncompiled): slow, for tests and debugging."""
+    """The same loops as plain Python (effects uncompiled): slow, for tests and debugging."""
     _register_effects(comp)
     namespace = {"_PYTHON_MODE": True, "__name__": "ebus_kernel_python"}
     exec(compile(layout.source, "<ebus kernel (python)>", "exec"), namespace)
-    return namespace["run"], namespace["run_record"]
+    return {name: namespace[name] for name in ("run", "run_record", "run_sample")}

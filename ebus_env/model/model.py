@@ -184,29 +184,32 @@ class Model:
         return np.tile(np.array(row, dtype=float), (n_bus, 1))
 
     # -- running ----------------------------------------------------------------------------
-    def kernel(self, record: bool = False):
-        """The compiled loop, plain or recording (compiled, or loaded from the disk cache, on
-        first call)."""
+    def kernel(self, variant: str = "run"):
+        """A compiled loop: ``run``, ``run_record`` or ``run_sample`` (compiled, or loaded
+        from the disk cache, on first call)."""
         if self._kernel is None:
             self._kernel = codegen.compile_kernel(self.composition, self.layout)
-        return self._kernel.run_record_compiled if record else self._kernel.run_compiled
+        return getattr(self._kernel, variant + "_compiled")
 
-    def compile(self, record: bool = False) -> float:
+    def compile(self, record: bool = False, sample: bool = False) -> float:
         """Compile now (or load from the disk cache); returns the seconds it took."""
         t0 = time.perf_counter()
         n_trace = len(self.trace_names)
-        self.run(self.params[None, :], self.initial_state(self.params, {})[None, :],
-                 np.zeros((1, len(self.input_names), 2)), n_steps=1,
-                 record_every=1 if record else 0,
+        args = (self.params[None, :], self.initial_state(self.params, {})[None, :],
+                np.zeros((1, len(self.input_names), 2)))
+        self.run(*args, n_steps=1, record_every=1 if record else 0,
                  record_out=np.zeros((1, 1, n_trace), np.float32) if record else None)
+        if sample:
+            self.run(*args, n_steps=1, sample_mask=np.ones(2, bool),
+                     record_out=np.zeros((1, 1, 1), np.float32))
         return time.perf_counter() - t0
 
     def run(self, params: np.ndarray, states: np.ndarray, inputs: np.ndarray,
             input_set: np.ndarray | None = None, step0: np.ndarray | None = None,
             n_steps: int | None = None, record_every: int = 0,
             record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
-            acc: np.ndarray | None = None, threads: int | None = None,
-            python: bool = False) -> np.ndarray:
+            acc: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
+            threads: int | None = None, python: bool = False) -> np.ndarray:
         """Advance N buses by ``n_steps`` from ``states`` (updated in place).
 
         Parameters
@@ -219,6 +222,8 @@ class Model:
         n_steps : steps to advance (default: all rows after ``step0``)
         record_every, record_sel, record_out : trace recording (see codegen)
         acc : (N, n_acc) accumulators to add to (default: new ones)
+        sample_mask : (n_rows,) bool: record only ``soc_frac`` at these rows, into
+            ``record_out[:, :, 0]``, and skip the energy sums (calibration)
         threads : split the buses over this many threads (default: all CPUs for N >= 4)
         python : run the uncompiled Python version of the same code
 
@@ -246,16 +251,25 @@ class Model:
             record_out = np.zeros((n_bus, 0, len(record_sel)), np.float32)
         if record_every > 0 and record_out.shape[1] < -(-n_steps // record_every):
             raise ValueError("record_out has too few rows for n_steps / record_every.")
+        variant = "run_record" if record_every > 0 else "run"
+        if sample_mask is None:
+            sample_mask = np.zeros(1, np.bool_)
+        else:
+            variant = "run_sample"
+            sample_mask = np.asarray(sample_mask, np.bool_)
+            rows = int(sample_mask[int(step0.min()):int(step0.max()) + n_steps].sum())
+            if sample_mask.shape[0] < inputs.shape[2] or record_out.shape[1] < rows:
+                raise ValueError("sample_mask needs one flag per input row and record_out one "
+                                 "row per flagged row in the run.")
         params = np.ascontiguousarray(params, dtype=float)
         args = (params, states, inputs, input_set, step0, int(n_steps), self.dt_s,
-                int(record_every), np.asarray(record_sel, np.int64), record_out, acc)
-        record = record_every > 0
+                int(record_every), np.asarray(record_sel, np.int64), record_out, sample_mask, acc)
         if python:
             if self._python_kernel is None:
                 self._python_kernel = codegen.python_kernel(self.composition, self.layout)
-            self._python_kernel[record](*args, 0, n_bus)
+            self._python_kernel[variant](*args, 0, n_bus)
             return acc
-        kernel = self.kernel(record)
+        kernel = self.kernel(variant)
         threads = default_threads() if threads is None else max(1, threads)
         threads = min(threads, n_bus) if n_bus >= 4 else 1
         if threads == 1:

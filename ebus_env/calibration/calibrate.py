@@ -1,0 +1,365 @@
+"""Fit a model to measured SoC: offline iSOPT or windowed (online) tuning, then say how well
+each parameter is determined, and how well the fit holds on calibration and validation data."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
+from ebus_env.calibration.metrics import soc_fit
+from ebus_env.calibration.problem import CalibrationProblem
+from ebus_env.profile import Profile
+
+NEAR_REL = 0.10
+"""Parameter values whose fit is within this fraction of the best NRMSE (plus ``NEAR_ABS``)
+count as "as good": their spread is how well the data determines a parameter."""
+NEAR_ABS = 5e-4
+
+
+@dataclass
+class Determinacy:
+    """How well the data pins a parameter down.
+
+    From the Jacobian J of the SoC residuals at the optimum, the parameters whose NRMSE is
+    within NEAR_REL of the best form the ellipsoid du' J'J du <= q; its extent along the
+    parameter (all others free to follow) is ``half_width`` (normalised to the bounds).
+    ``partners`` are the parameters it trades off against (correlation above 0.9).
+    """
+
+    status: str  # "well determined", "weakly determined", "not determined"
+    low: float
+    high: float
+    half_width: float
+    partners: list[str]
+    grid: list[float]
+    cost: list[float]
+
+
+@dataclass
+class CalibrationResult:
+    """Fitted values, how well determined each is, and the fit on calibration and validation."""
+
+    model_name: str
+    free: list[str]
+    values: dict[str, float]
+    bounds: dict[str, tuple[float, float]]
+    units: dict[str, str]
+    cost: float
+    fit: dict
+    validation: dict | None
+    determinacy: dict[str, Determinacy]
+    history: History
+    evaluations: int
+    simulated_steps: int
+    wall_time_s: float
+    interrupted: bool = False
+    method: str = "iSOPT"
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    windows: list[dict] = field(default_factory=list)
+    curves: dict = field(default_factory=dict)  # for plotting: label -> (t_h, sim, meas)
+
+    def overlay(self) -> dict:
+        """A bus-config overlay with the fitted values (``ebus simulate --overlay``)."""
+        params: dict[str, dict[str, float]] = {}
+        for name, value in self.values.items():
+            effect, param = name.split(".", 1)
+            params.setdefault(effect, {})[param] = round(float(value), 6)
+        note = {"method": self.method, "nrmse": round(self.fit["nrmse"], 5),
+                "evaluations": self.evaluations,
+                "not_determined": [p for p, d in self.determinacy.items()
+                                   if d.status == "not determined"]}
+        if self.validation:
+            note["validation_nrmse"] = round(self.validation["nrmse"], 5)
+        return {"params": params, "calibration": note}
+
+    def write_overlay(self, path: str | Path) -> None:
+        import yaml
+
+        text = (f"# Calibrated on {self.model_name} by ebus calibrate ({self.method}). Merge with\n"
+                f"#   ebus simulate --bus <bus> --overlay {Path(path).name}\n")
+        Path(path).write_text(text + yaml.safe_dump(self.overlay(), sort_keys=False))
+
+    def to_json(self) -> dict:
+        out = {
+            "params": self.values,
+            "units": self.units,
+            "bounds": {k: list(v) for k, v in self.bounds.items()},
+            "determinacy": {k: {"status": d.status, "low": d.low, "high": d.high,
+                                "half_width": d.half_width, "trades_off_with": d.partners}
+                            for k, d in self.determinacy.items()},
+            "cost": self.cost,
+            **{k: v for k, v in self.fit.items()},
+            "validation": self.validation,
+            "wall_time_s": self.wall_time_s,
+            "evaluations": self.evaluations,
+            "simulated_steps": self.simulated_steps,
+            "method": self.method,
+            "interrupted": self.interrupted,
+            "history": {"best_cost": self.history.best_cost,
+                        "evaluations": self.history.evaluations,
+                        "escapes": self.history.escapes},
+            "notes": self.notes,
+            "warnings": self.warnings,
+        }
+        if self.windows:
+            out["windows"] = self.windows
+        return out
+
+    def plot(self, path: str | Path) -> None:
+        """Simulated vs measured SoC with the residual, calibration and validation."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        labels = list(self.curves)
+        fig, axes = plt.subplots(2, len(labels), figsize=(6.5 * len(labels), 6), sharex="col",
+                                 squeeze=False, constrained_layout=True)
+        for j, label in enumerate(labels):
+            t_h, sim, meas = self.curves[label]
+            axes[0, j].plot(t_h, 100 * meas, "k.", ms=1.5, label="measured")
+            axes[0, j].plot(t_h, 100 * sim, color="C0", lw=1.0, label="calibrated model")
+            axes[0, j].set_title(label)
+            axes[0, j].set_ylabel("SoC [%]")
+            axes[0, j].legend(fontsize=8)
+            axes[1, j].plot(t_h, 100 * (sim - meas), color="C3", lw=0.8)
+            axes[1, j].axhline(0, color="0.5", lw=0.5)
+            axes[1, j].set_ylabel("model - measured [%-pts]")
+            axes[1, j].set_xlabel("time [h]")
+            for ax in axes[:, j]:
+                ax.grid(alpha=0.3)
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+    def plot_history(self, path: str | Path) -> None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 3.5), constrained_layout=True)
+        ax.semilogy(self.history.evaluations, self.history.best_cost, "-o", ms=2)
+        for it in self.history.escapes:
+            ax.axvline(self.history.evaluations[it], color="0.7", lw=0.5)
+        ax.set_xlabel("evaluations")
+        ax.set_ylabel("best cost")
+        ax.set_title(f"{self.method} convergence (grey: escapes)")
+        ax.grid(alpha=0.3, which="both")
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+
+def distinct_starts(x: np.ndarray, cost: np.ndarray, k: int = 4, min_distance: float = 0.25,
+                    within: float = 3.0) -> np.ndarray:
+    """Up to ``k`` good points at least ``min_distance`` apart (normalised, max-norm), best
+    first, among those costing at most ``within`` times the best: starts for polishing."""
+    order = np.argsort(cost, kind="stable")
+    chosen: list[int] = []
+    for i in order:
+        if not np.isfinite(cost[i]) or cost[i] > within * cost[order[0]]:
+            break
+        if all(np.max(np.abs(x[i] - x[j])) >= min_distance for j in chosen):
+            chosen.append(i)
+            if len(chosen) == k:
+                break
+    return x[chosen]
+
+
+def polish(problem: CalibrationProblem, starts: np.ndarray, iterations: int = 12,
+           step: float = 0.01) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt on the SoC residuals from several starts at once.
+
+    All starts advance in lock-step: per iteration one batched run gives every start's
+    forward-difference Jacobian, and a second tries three damping values per start. Steps are
+    projected onto the unit box. Returns (points, their NRMSE, their Jacobians)."""
+    u = np.clip(np.atleast_2d(starts).astype(float), 0.0, 1.0)
+    k, d = u.shape
+    r = problem.residuals(u)
+    f = np.sqrt(np.sum(r * r, axis=1))
+    damping = np.full(k, 1e-3)
+    jac = np.zeros((k, r.shape[1], d))
+    factors = np.array([0.1, 1.0, 10.0])
+
+    def jacobians(u, r):
+        signs = np.where(u + step <= 1.0, 1.0, -1.0)  # (k, d)
+        shifted = (u[:, None, :] + np.eye(d)[None] * (signs * step)[:, :, None]).reshape(-1, d)
+        rs = problem.residuals(shifted).reshape(k, d, -1)
+        return np.transpose((rs - r[:, None, :]) / (signs * step)[:, :, None], (0, 2, 1))
+
+    for _ in range(iterations):
+        jac = jacobians(u, r)
+        trials = np.zeros((k, len(factors), d))
+        for i in range(k):
+            jtj = jac[i].T @ jac[i]
+            g = jac[i].T @ r[i]
+            scale = np.diag(jtj) + 1e-12
+            for j, factor in enumerate(factors):
+                lam = damping[i] * factor
+                delta = np.linalg.solve(jtj + lam * np.diag(scale), -g)
+                trials[i, j] = np.clip(u[i] + delta, 0.0, 1.0)
+        rt = problem.residuals(trials.reshape(-1, d)).reshape(k, len(factors), -1)
+        ft = np.sqrt(np.sum(rt * rt, axis=2))
+        best = np.argmin(ft, axis=1)
+        improved = ft[np.arange(k), best] < f * (1 - 1e-6)
+        moved = 0.0
+        for i in np.flatnonzero(improved):
+            moved = max(moved, float(np.max(np.abs(trials[i, best[i]] - u[i]))))
+            u[i], r[i], f[i] = trials[i, best[i]], rt[i, best[i]], ft[i, best[i]]
+            damping[i] *= factors[best[i]] / 3.0
+        damping[~improved] *= 10.0
+        if not improved.any() or moved < 1e-5:
+            break
+    return u, f, jacobians(u, r)
+
+
+def determinacy(problem: CalibrationProblem, u_best: np.ndarray, cost_best: float,
+                jacobian: np.ndarray, others: np.ndarray | None = None,
+                points: int = 9) -> dict[str, Determinacy]:
+    """How well each free parameter is determined (see :class:`Determinacy`), with the cost
+    along each parameter through the optimum for the report (one batched evaluation).
+    ``others`` are other local optima as good as the best (within NEAR_REL): the spread to
+    them counts too, so a second valley that fits as well is not hidden."""
+    grid = np.linspace(0.0, 1.0, points)
+    u = np.tile(u_best, (len(problem.free) * points, 1))
+    for i in range(len(problem.free)):
+        u[i * points:(i + 1) * points, i] = grid
+    costs = problem.cost(u).reshape(len(problem.free), points)
+    q = cost_best**2 * ((1 + NEAR_REL) ** 2 - 1) + NEAR_ABS**2
+    info = jacobian.T @ jacobian
+    eigval, eigvec = np.linalg.eigh(info)
+    floor = max(eigval.max(), 1e-300) * 1e-12
+    cov = (eigvec / np.maximum(eigval, floor)) @ eigvec.T  # pseudo-inverse of J'J
+    widths = np.sqrt(np.maximum(q * np.diag(cov), 0.0))
+    if others is not None and len(others):
+        widths = np.maximum(widths, np.max(np.abs(others - u_best), axis=0))
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(sd, sd)
+    best = problem.values(u_best[None])[0]
+    out = {}
+    for i, name in enumerate(problem.free):
+        span = problem.high[i] - problem.low[i]
+        half = float(widths[i])
+        if half > 0.35:
+            status = "not determined"
+        elif half > 0.10:
+            status = "weakly determined"
+        else:
+            status = "well determined"
+        partners = [problem.free[j] for j in np.argsort(-np.abs(corr[i]))
+                    if j != i and abs(corr[i, j]) > 0.9]
+        out[name] = Determinacy(
+            status, float(max(problem.low[i], best[i] - half * span)),
+            float(min(problem.high[i], best[i] + half * span)), half, partners,
+            (problem.low[i] + grid * span).tolist(), costs[i].tolist())
+    return out
+
+
+def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray) -> tuple[dict, dict]:
+    """Fit statistics of a parameter vector on profiles (each from its measured first SoC),
+    and the curves for plotting."""
+    sims, meas, times = [], [], []
+    sim_energy = meas_energy = 0.0
+    have_power = True
+    offset = 0.0
+    for p in profiles:
+        soc = p.measured["soc_frac"]
+        rows = p.sample_rows("soc_frac")
+        rows = rows[np.isfinite(soc[rows])]
+        result = model.simulate(p, params, soc_start=float(soc[rows[0]]))
+        sims.append(result.trace("soc_frac")[rows])
+        meas.append(soc[rows])
+        times.append((offset + rows * p.dt_s) / 3600.0)
+        offset += p.duration_s
+        current, voltage = p.measured.get("battery_current_a"), p.measured.get("battery_voltage_v")
+        if current is not None and voltage is not None and np.all(np.isfinite(current * voltage)):
+            # energy drawn from the pack (discharge only), so charging does not cancel it
+            meas_energy += float(np.sum(np.maximum(current * voltage, 0.0))) * p.dt_s
+            sim_energy += float(np.sum(np.maximum(result.trace("battery_power_w"), 0.0))) * p.dt_s
+        else:
+            have_power = False
+    sim, mea = np.concatenate(sims), np.concatenate(meas)
+    fit = soc_fit(sim, mea)
+    if have_power and abs(meas_energy) > 0:
+        fit["energy_error_pct"] = 100.0 * (sim_energy - meas_energy) / abs(meas_energy)
+        fit["energy_error_basis"] = "energy drawn, from battery current x voltage"
+    else:
+        used_sim = sum(s[0] - s[-1] for s in sims)
+        used_meas = sum(m[0] - m[-1] for m in meas)
+        fit["energy_error_pct"] = 100.0 * (used_sim - used_meas) / abs(used_meas) \
+            if used_meas else float("nan")
+        fit["energy_error_basis"] = "SoC used (no current/voltage in the log)"
+    return fit, {"t_h": np.concatenate(times), "sim": sim, "meas": mea}
+
+
+def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
+              bounds: Mapping[str, Sequence[float]] | None = None,
+              fixed: Mapping[str, float] | None = None, settings: ISOPTSettings | None = None,
+              validate: Sequence[Profile] | None = None, windowed: bool = False,
+              categorical_load: bool = False, chunks: int = 8,
+              progress: Callable[[int, float, int], None] | None = None,
+              window_settings=None, polish_starts: int | None = None) -> CalibrationResult:
+    """Fit the free parameters of ``model`` to the measured SoC of ``profiles``.
+
+    Offline: one iSOPT run over the whole data (the population evaluated in one batched call of
+    the compiled core per phase), then a Levenberg-Marquardt polish from the ``polish_starts``
+    best distinct points it found (default 4; 0 for none). Windowed: see
+    :mod:`ebus_env.calibration.windowed` (no polish by default: it would cost full-day runs).
+    Then the Jacobian and the other local optima tell how well the data determines each
+    parameter, and the fitted model is scored on the calibration and ``validate`` profiles.
+    """
+    t0 = time.perf_counter()
+    settings = settings or ISOPTSettings()
+    problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks)
+    windows: list[dict] = []
+    if windowed:
+        from ebus_env.calibration.windowed import tune_windowed
+
+        best_u, best_cost, history, evaluations, interrupted, windows = tune_windowed(
+            problem, settings, window_settings, progress)
+        method = "iSOPT, windowed"
+    else:
+        run = isopt(problem.cost, len(problem.free), settings, callback=progress)
+        best_u, best_cost, history = run.x, run.cost, run.history
+        evaluations, interrupted = run.evaluations, run.interrupted
+        method = "iSOPT"
+    if polish_starts is None:
+        polish_starts = 0 if windowed else 4
+    det = {}
+    if not interrupted:
+        x_all, c_all = history.all_evaluated()
+        starts = distinct_starts(np.vstack([best_u, x_all]), np.concatenate([[best_cost], c_all]),
+                                 k=max(1, polish_starts))
+        points, _, jacobians = polish(problem, starts, iterations=12 if polish_starts else 0)
+        costs = problem.cost(points)  # with penalties
+        i = int(np.argmin(costs))
+        if costs[i] < best_cost:
+            best_u, best_cost = points[i], float(costs[i])
+            method += " + least-squares polish"
+        near = (costs <= best_cost * (1 + NEAR_REL) + NEAR_ABS) & (np.arange(len(costs)) != i)
+        det = determinacy(problem, best_u, best_cost, jacobians[i], points[near])
+    tuning_s = time.perf_counter() - t0
+    params = problem.params(best_u)[0]
+    fit, curve = evaluate_fit(model, profiles, params)
+    curves = {"calibration": (curve["t_h"], curve["sim"], curve["meas"])}
+    validation = None
+    if validate:
+        validation, vcurve = evaluate_fit(model, validate, params)
+        curves["validation"] = (vcurve["t_h"], vcurve["sim"], vcurve["meas"])
+    notes = list(problem.notes)
+    if interrupted:
+        notes.append("interrupted: this is the best point found before the interruption")
+    return CalibrationResult(
+        model_name=model.name, free=problem.free, values=problem.named(best_u),
+        bounds={p: (float(lo), float(hi)) for p, lo, hi in zip(problem.free, problem.low,
+                                                                problem.high, strict=True)},
+        units={p: model.param_info(p).unit for p in problem.free}, cost=float(best_cost),
+        fit=fit, validation=validation, determinacy=det, history=history,
+        evaluations=evaluations, simulated_steps=problem.simulated_steps,
+        wall_time_s=tuning_s, interrupted=interrupted, method=method, notes=notes,
+        warnings=list(problem.warnings), windows=windows, curves=curves)

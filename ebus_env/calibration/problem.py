@@ -1,0 +1,284 @@
+"""The calibration problem: which parameters are free, their box, and the cost of a candidate.
+
+Cost of a candidate (paper section 4.2)::
+
+    J = NRMSE(SoC_sim, SoC_meas) + sum_k penalty_k,    penalty_k = 1 + v_k / s_k  if v_k > 0
+
+with the SoC compared only at the rows where the log has samples, and penalties (always greater
+than 1, growing with the violation v_k) for: CV decay factor, regen cutoff speed and CC/CV
+cutoff SoC not positive; cutoff SoC not below 100 %; RCD not below 25 %; charging power not
+positive; simulated SoC below 10 %. Charging events shorter than one minute are a property of
+the data, not of a candidate: they are reported as warnings (a constant penalty would only
+shift every cost).
+
+A whole population runs in one batched call of the compiled core, in chunks of the day: after
+each chunk the SoC error so far gives a lower bound on a candidate's final cost, and candidates
+that can no longer beat the population's worst are dropped (the upper-bound strategy).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ebus_env.errors import ConfigError
+from ebus_env.profile import Profile
+
+PAPER_PARAMS = (
+    "passenger_load.load_frac",
+    "cabin_hvac.setpoint_degc",
+    "static_rcd.rcd_frac",
+    "cccv_taper.cv_soc_pct",
+    "cccv_taper.decay_per_pct",
+    "grid_charger.power_kw",
+    "regen_cutoff.cutoff_speed_mps",
+)
+"""The seven uncertain parameters Hasan et al. 2023 tune, by qualified name."""
+
+LOAD_LEVELS = (0.0, 0.5, 1.0)
+"""The paper's passenger-load categories: driver only, half load, full load."""
+
+SOC_FLOOR_FRAC = 0.10
+
+
+@dataclass(frozen=True)
+class ParamConstraint:
+    """``param`` must stay above ``low`` and below ``high`` (strictly); violations are scaled
+    by ``scale`` in the penalty."""
+
+    param: str
+    low: float | None
+    high: float | None
+    scale: float
+    text: str
+
+
+CONSTRAINTS = (
+    ParamConstraint("cccv_taper.decay_per_pct", 0.0, None, 0.1, "CV decay factor positive"),
+    ParamConstraint("regen_cutoff.cutoff_speed_mps", 0.0, None, 1.0, "cutoff speed positive"),
+    ParamConstraint("cccv_taper.cv_soc_pct", 0.0, 100.0, 10.0, "cutoff SoC in (0, 100) %"),
+    ParamConstraint("static_rcd.rcd_frac", None, 0.25, 0.25, "RCD below 25 %"),
+    ParamConstraint("grid_charger.power_kw", 0.0, None, 10.0, "charging power positive"),
+)
+
+
+def penalty(violation: np.ndarray, scale: float) -> np.ndarray:
+    """1 + v / scale where the violation v > 0, else 0."""
+    return np.where(violation > 0, 1.0 + violation / scale, 0.0)
+
+
+def outside(x: np.ndarray, low: float | None, high: float | None, scale: float) -> np.ndarray:
+    """Penalty for x not strictly inside (low, high): 1 + distance / scale, 0 inside."""
+    total = np.zeros_like(x)
+    if low is not None:
+        total += np.where(x <= low, 1.0 + (low - x) / scale, 0.0)
+    if high is not None:
+        total += np.where(x >= high, 1.0 + (x - high) / scale, 0.0)
+    return total
+
+
+@dataclass
+class _Data:
+    """One profile's inputs and measured SoC samples."""
+
+    profile: Profile
+    inputs: np.ndarray
+    mask: np.ndarray
+    rows: np.ndarray
+    measured: np.ndarray
+    soc_start: float
+    first: dict
+    initial: dict
+
+
+class CalibrationProblem:
+    """Free parameters, their box and the cost of candidates on measured profiles.
+
+    Parameters
+    ----------
+    model
+        The built model.
+    profiles
+        Measured profiles (several: consecutive segments or days); each needs measured SoC.
+    free
+        Qualified names to fit (default: the paper's seven that the model has).
+    bounds
+        ``{name: (low, high)}`` narrowing the declared/configured bounds (prior ranges).
+    fixed
+        ``{name: value}`` known parameters (e.g. the battery capacity).
+    categorical_load
+        Restrict ``passenger_load.load_frac`` to the paper's three categories.
+    chunks
+        Parts of the day between which hopeless candidates are dropped (1: never).
+    initial
+        Per profile, initial states other than SoC (``cabin_temp_degc``...), e.g. carried over
+        from the window before; SoC always starts at the first measured value.
+    """
+
+    def __init__(self, model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
+                 bounds: Mapping[str, Sequence[float]] | None = None,
+                 fixed: Mapping[str, float] | None = None, categorical_load: bool = False,
+                 chunks: int = 8, initial: Sequence[Mapping[str, float]] | None = None):
+        self.model = model
+        self.notes: list[str] = []
+        self.warnings: list[str] = []
+        fixed = dict(fixed or {})
+        self.base = model.param_vector(fixed)
+        if free is None:
+            free = [p for p in PAPER_PARAMS if p in model.param_names]
+            missing = [p for p in PAPER_PARAMS if p not in model.param_names]
+            if missing:
+                self.notes.append(f"the model lacks {', '.join(missing)}: not fitted")
+        free = [p for p in free if p not in fixed]
+        if not free:
+            raise ConfigError("Nothing to calibrate: give free parameters (--params) that the "
+                              "model has and that are not fixed.")
+        for name in free:
+            model.param_index(name)  # unknown names fail with a close match
+        self.free = list(free)
+        self.index = np.array([model.param_index(p) for p in self.free])
+        self.low = model.bounds[self.index, 0].copy()
+        self.high = model.bounds[self.index, 1].copy()
+        for name, pair in (bounds or {}).items():
+            if name not in self.free:
+                raise ConfigError(f"A range is given for '{name}', which is not a free "
+                                  f"parameter ({', '.join(self.free)}).")
+            i = self.free.index(name)
+            low, high = (float(v) for v in pair)
+            if not self.low[i] <= low < high <= self.high[i]:
+                raise ConfigError(
+                    f"The range [{low:g}, {high:g}] for '{name}' must lie inside its bounds "
+                    f"[{self.low[i]:g}, {self.high[i]:g}] (a range may narrow them, never "
+                    "widen them).")
+            self.low[i], self.high[i] = low, high
+            default = self.base[self.index[i]]
+            if not low <= default <= high:
+                raise ConfigError(
+                    f"The range [{low:g}, {high:g}] for '{name}' excludes its current value "
+                    f"{default:g}: widen the range to include it, or fix the parameter at a "
+                    f"value inside (--fix {name}=...).")
+        self.categorical = categorical_load and "passenger_load.load_frac" in self.free
+        self.chunks = max(1, int(chunks))
+        initial = list(initial) if initial is not None else [{} for _ in profiles]
+        self.data = [self._prepare(p, dict(init)) for p, init in zip(profiles, initial, strict=True)]
+        all_meas = np.concatenate([d.measured for d in self.data])
+        self.n_samples = len(all_meas)
+        self.span = float(np.max(all_meas) - np.min(all_meas))
+        if self.span <= 0:
+            raise ConfigError("The measured SoC never changes: there is nothing to fit. Give a "
+                              "log in which the battery is used (or charged).")
+        self.constraints = [c for c in CONSTRAINTS if c.param in model.param_names]
+        self.evaluations = 0
+        self.simulated_steps = 0
+
+    # -- data ------------------------------------------------------------------------------
+    def _prepare(self, profile: Profile, initial: dict) -> _Data:
+        soc = profile.measured.get("soc_frac")
+        if soc is None or not np.isfinite(soc).any():
+            raise ConfigError(f"Profile '{profile.name}' has no measured SoC: calibration fits "
+                              "the model to it. Give a log with a 'soc_pct' (or 'soc_frac') "
+                              "column.")
+        rows = profile.sample_rows("soc_frac")
+        rows = rows[np.isfinite(soc[rows])]
+        if len(rows) < 2:
+            raise ConfigError(f"Profile '{profile.name}' has fewer than two SoC samples.")
+        inputs = self.model.input_array(profile)
+        mask = np.zeros(profile.n_steps, np.bool_)
+        mask[rows] = True
+        first = dict(zip(self.model.input_names, inputs[:, 0], strict=True))
+        connected = profile.channel("charger_connected") > 0.5
+        edges = np.diff(np.concatenate([[0], connected.astype(int), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        short = np.flatnonzero((stops - starts) * profile.dt_s < 60.0)
+        if short.size:
+            self.warnings.append(
+                f"{profile.name}: {short.size} charging event(s) shorter than 1 min (at "
+                f"{', '.join(f'{starts[i] * profile.dt_s:.0f} s' for i in short[:5])})")
+        return _Data(profile, inputs, mask, rows, soc[rows], float(soc[rows[0]]), first, initial)
+
+    # -- parameters ------------------------------------------------------------------------
+    def values(self, u: np.ndarray) -> np.ndarray:
+        """Free-parameter values for normalised points ``u`` (n, n_free)."""
+        x = self.low + np.clip(u, 0.0, 1.0) * (self.high - self.low)
+        if self.categorical:
+            i = self.free.index("passenger_load.load_frac")
+            levels = np.array(LOAD_LEVELS)
+            x[:, i] = levels[np.argmin(np.abs(x[:, i, None] - levels), axis=1)]
+        return x
+
+    def normalise(self, values: np.ndarray) -> np.ndarray:
+        return (np.asarray(values, dtype=float) - self.low) / (self.high - self.low)
+
+    def params(self, u: np.ndarray) -> np.ndarray:
+        """Full parameter matrix (n, n_params) for normalised points ``u``."""
+        u = np.atleast_2d(u)
+        matrix = np.tile(self.base, (len(u), 1))
+        matrix[:, self.index] = self.values(u)
+        return matrix
+
+    def parameter_penalties(self, matrix: np.ndarray) -> np.ndarray:
+        return sum((outside(matrix[:, self.model.param_index(c.param)], c.low, c.high, c.scale)
+                    for c in self.constraints), np.zeros(len(matrix)))
+
+    # -- cost ------------------------------------------------------------------------------
+    def cost(self, u: np.ndarray, threshold: float = np.inf) -> np.ndarray:
+        """Cost of candidates ``u`` (n, n_free); candidates that cannot beat ``threshold`` get
+        a lower bound above it."""
+        matrix = self.params(u)
+        n = len(matrix)
+        fixed_part = self.parameter_penalties(matrix)
+        sse = np.zeros(n)
+        soc_min = np.full(n, np.inf)
+        alive = np.arange(n)
+        scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
+        for d in self.data:
+            if alive.size == 0:
+                break
+            states = np.array([self.model.initial_state(matrix[i], d.first, d.soc_start,
+                                                        **d.initial) for i in alive])
+            acc = self.model.new_accumulators(len(alive))
+            n_rows = d.inputs.shape[1]
+            edges = np.linspace(0, n_rows, self.chunks + 1).astype(int)
+            for a, b in zip(edges[:-1], edges[1:], strict=True):
+                if b <= a or alive.size == 0:
+                    continue
+                in_chunk = (d.rows >= a) & (d.rows < b)
+                out = np.zeros((len(alive), int(in_chunk.sum()), 1), np.float32)
+                self.model.run(matrix[alive], states, d.inputs, step0=np.full(len(alive), a),
+                               n_steps=b - a, record_out=out, sample_mask=d.mask, acc=acc)
+                self.simulated_steps += len(alive) * (b - a)
+                err = out[:, :, 0].astype(float) - d.measured[in_chunk]
+                sse[alive] += np.sum(err * err, axis=1)
+                soc_min[alive] = np.minimum(soc_min[alive], acc[:, self.model.accumulator_names
+                                                                 .index("soc_min")])
+                bound = (np.sqrt(sse[alive]) * scale + fixed_part[alive]
+                         + penalty(SOC_FLOOR_FRAC - soc_min[alive], SOC_FLOOR_FRAC))
+                keep = bound <= threshold
+                if not keep.all():
+                    states, acc = states[keep], acc[keep]
+                    alive = alive[keep]
+        self.evaluations += n
+        return (np.sqrt(sse) * scale + fixed_part
+                + penalty(SOC_FLOOR_FRAC - soc_min, SOC_FLOOR_FRAC))
+
+    def residuals(self, u: np.ndarray) -> np.ndarray:
+        """Scaled SoC residuals (n, n_samples), (sim - meas) / (span sqrt(n_samples)), whose
+        norm is the NRMSE: for least-squares polishing and the Jacobian (no penalties)."""
+        matrix = self.params(u)
+        parts = []
+        scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
+        for d in self.data:
+            states = np.array([self.model.initial_state(row, d.first, d.soc_start, **d.initial)
+                               for row in matrix])
+            out = np.zeros((len(matrix), len(d.rows), 1), np.float32)
+            self.model.run(matrix, states, d.inputs, record_out=out, sample_mask=d.mask)
+            self.simulated_steps += len(matrix) * d.inputs.shape[1]
+            parts.append((out[:, :, 0].astype(float) - d.measured) * scale)
+        self.evaluations += len(matrix)
+        return np.concatenate(parts, axis=1)
+
+    # -- reporting -------------------------------------------------------------------------
+    def named(self, u: np.ndarray) -> dict[str, float]:
+        return dict(zip(self.free, self.values(np.atleast_2d(u))[0].tolist(), strict=True))

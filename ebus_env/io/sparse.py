@@ -1,0 +1,122 @@
+"""Sparse logs (Osnabrueck-like): speed, distance and SoC only every few minutes.
+
+The paper reconstructs the drive between two samples from the distance covered: a standard
+cycle scaled to the interval's mean speed when its distance fits, otherwise constant speed.
+Here, for each interval of duration T and distance d:
+
+* no distance (d < 10 m): standing, on the charger when ``charging`` = 1 at its start;
+* on the charger at its start or its end (``charging`` = 1) and distance covered: the drive
+  takes d / v_c at the cycle's own mean speed v_c, the rest of the interval is on the charger
+  (first when plugged in at the start, last when plugged in at the end);
+* the cycle scaled to the mean speed d / T fits when one lap lasts at most T and the scaled
+  cycle stays under the vehicle's top speed: laps of it fill T, and the speeds are corrected
+  by the (small) factor that makes the distance exactly d;
+* otherwise constant speed d / T.
+
+
+The SoC is compared with the model only at the log's own sample times.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ebus_env.cycles import Cycle, load_cycle
+from ebus_env.errors import LogError
+from ebus_env.io.measured import (
+    LoadReport,
+    MeasuredLog,
+    _apply_columns,
+    _numeric,
+    _read,
+    _time,
+    column_preset,
+)
+from ebus_env.profile import Profile
+
+
+def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "sort2",
+                    columns: dict | str | None = None, max_speed_kmh: float = 80.0,
+                    name: str | None = None) -> MeasuredLog:
+    """Read a sparse log (``time_s``, ``distance_km`` cumulative, ``soc_pct``, optional
+    ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module docstring)."""
+    path = Path(path)
+    report = LoadReport(str(path))
+    if isinstance(columns, (str, Path)):
+        columns = column_preset(columns)
+    frame = _apply_columns(_read(path), columns, path, report)
+    report.rows = len(frame)
+    t, start_h = _time(frame, path, report)
+    for required in ("distance_km", "soc_pct"):
+        if required not in frame.columns:
+            raise LogError(f"A sparse log needs the column '{required}'", path=path,
+                           fix="give cumulative distance in 'distance_km' and SoC in 'soc_pct'")
+    distance = _numeric(frame, "distance_km", path) * 1000.0
+    soc = _numeric(frame, "soc_pct", path) / 100.0
+    for label, values in (("distance_km", distance), ("soc_pct", soc)):
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise LogError("Missing values", path=path, column=label, rows=bad,
+                           fix="a sparse log needs every sample")
+    back = np.flatnonzero(np.diff(distance) < -1e-6) + 1
+    if back.size:
+        raise LogError("Distance decreases", path=path, column="distance_km", rows=back,
+                       fix="give the cumulative distance (odometer)")
+    charging = _numeric(frame, "charging", path) if "charging" in frame.columns \
+        else np.zeros(len(t))
+    ambient = _numeric(frame, "ambient_degc", path) if "ambient_degc" in frame.columns else None
+    base = cycle if isinstance(cycle, Cycle) else load_cycle(cycle)
+    pieces, connected = [], []
+    kinds = {"charging": 0, "standing": 0, "cycle": 0, "constant": 0, "split": 0}
+    base_mean = base.mean_speed_kmh / 3.6
+    for i in range(len(t) - 1):
+        steps = int(round((t[i + 1] - t[i]) / dt_s))
+        d = distance[i + 1] - distance[i]
+        start_on, end_on = charging[i] > 0.5, charging[i + 1] > 0.5
+        if d < 10.0:
+            kind = "charging" if start_on else "standing"
+            speed, plugged = np.zeros(steps), np.full(steps, float(start_on))
+        else:
+            drive = steps
+            if start_on or end_on:  # part of the interval on the charger
+                drive = max(1, min(steps, int(round(d / (base_mean * dt_s)))))
+                kinds["split"] += 1
+            speed, kind = _fill(base, d / (drive * dt_s), drive, dt_s, max_speed_kmh / 3.6)
+            speed *= d / (np.sum(speed) * dt_s)  # the interval's distance, exactly
+            rest = np.zeros(steps - drive)
+            speed = np.concatenate([rest, speed] if start_on else [speed, rest])
+            on = np.ones(steps - drive)
+            plugged = np.concatenate([on, np.zeros(drive)] if start_on
+                                     else [np.zeros(drive), on])
+        kinds[kind] += 1
+        pieces.append(speed)
+        connected.append(plugged)
+    v = np.concatenate(pieces + [[0.0]])
+    n = len(v)
+    rows = np.concatenate([[0], np.cumsum([len(p) for p in pieces])])
+    grid_t = np.arange(n) * dt_s
+    channels = {"speed_ref_mps": v, "charger_connected": np.concatenate(connected + [[0.0]])}
+    if ambient is not None:
+        channels["ambient_degc"] = np.interp(grid_t, t - t[0], ambient)
+    measured = {"soc_frac": np.interp(grid_t, rows * dt_s, soc)}
+    report.changes.append(
+        f"{len(t) - 1} intervals rebuilt: {kinds['cycle']} with {base.name} scaled to their "
+        f"mean speed, {kinds['constant']} at constant speed, {kinds['standing']} standing, "
+        f"{kinds['charging']} charging; {kinds['split']} of the driven ones partly on the "
+        "charger")
+    profile = Profile(channels, dt_s, name or path.stem, start_h, measured,
+                      list(report.changes), samples={"soc_frac": rows})
+    return MeasuredLog([profile], report)
+
+
+def _fill(cycle: Cycle, mean_mps: float, steps: int, dt_s: float,
+          max_speed_mps: float) -> tuple[np.ndarray, str]:
+    """Speeds of one interval: laps of the scaled cycle when it fits, else constant."""
+    scaled = cycle.scaled(mean_mps * 3.6)
+    lap = scaled.lap(dt_s)["speed_ref_mps"]
+    if len(lap) <= steps and lap.max() <= max_speed_mps:
+        reps = -(-steps // len(lap))
+        return np.tile(lap, reps)[:steps].copy(), "cycle"
+    return np.full(steps, mean_mps), "constant"

@@ -1,0 +1,258 @@
+"""Calibration: iSOPT itself, synthetic twins (known truth, degraded like real logs), sparse
+logs, windowed tuning, bad input and the command line."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ebus_env.calibration import CalibrationProblem, ISOPTSettings, calibrate, isopt
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.errors import ConfigError
+from ebus_env.io.measured import load_log
+from ebus_env.io.sparse import load_sparse_log
+from ebus_env.synthetic import synthetic_log
+from tests.conftest import DT
+
+ROOT = Path(__file__).resolve().parent.parent
+TRUTH = {"passenger_load.load_frac": 0.7, "cabin_hvac.setpoint_degc": 21.5,
+         "static_rcd.rcd_frac": 0.12, "cccv_taper.cv_soc_pct": 90.0,
+         "cccv_taper.decay_per_pct": 0.35, "grid_charger.power_kw": 300.0,
+         "regen_cutoff.cutoff_speed_mps": 2.5}
+
+
+# -- iSOPT on its own ------------------------------------------------------------------------
+def sphere(u, threshold=np.inf):
+    return np.sum((u - 0.3) ** 2, axis=1)
+
+
+def test_isopt_converges_and_reports_its_budget():
+    run = isopt(sphere, 7, ISOPTSettings(seed=3))
+    assert run.cost < 1e-4
+    assert np.allclose(run.x, 0.3, atol=0.01)
+    assert run.evaluations == ISOPTSettings().budget + 5 * len(run.history.escapes)  # 5 re-drawn
+    assert ISOPTSettings().budget == 1111
+    assert len(run.history.best_cost) == 51
+    assert np.all(np.diff(run.history.best_cost) <= 0)  # elitist: the best never gets worse
+
+
+def test_isopt_is_reproducible_and_seeded():
+    a, b = isopt(sphere, 5, ISOPTSettings(seed=7)), isopt(sphere, 5, ISOPTSettings(seed=7))
+    c = isopt(sphere, 5, ISOPTSettings(seed=8))
+    np.testing.assert_array_equal(a.x, b.x)
+    assert a.history.best_cost == b.history.best_cost
+    assert not np.array_equal(a.x, c.x)
+
+
+def test_isopt_escapes_a_stalled_population():
+    def plateau(u, threshold=np.inf):  # flat almost everywhere: the population stalls
+        return np.where(np.all(u > 0.9, axis=1), 0.0, 1.0)
+
+    run = isopt(plateau, 2, ISOPTSettings(seed=0, iterations=60, stall_iterations=5))
+    assert run.history.escapes, "a stalled population must be re-seeded"
+
+
+def test_isopt_keeps_the_best_so_far_on_ctrl_c():
+    calls = {"n": 0}
+
+    def interrupted(u, threshold=np.inf):
+        calls["n"] += 1
+        if calls["n"] == 30:
+            raise KeyboardInterrupt
+        return sphere(u)
+
+    run = isopt(interrupted, 3, ISOPTSettings(seed=1))
+    assert run.interrupted and np.isfinite(run.cost)
+    assert run.cost == min(run.history.best_cost)
+
+
+# -- twins -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def bus12():
+    return load_bus("12m")
+
+
+@pytest.fixture(scope="module")
+def model(bus12):
+    m = bus12.build()
+    m.compile(sample=True)
+    return m
+
+
+def twin_day(bus12, hours, charging=True, ambient=(-2.0, 12.0)):
+    service = replace(bus12.service, layover_charger_kw=None, charge_at_layovers=charging)
+    day = service_day("sort2", hours, DT, service)
+    return day.with_channels(ambient_degc=np.linspace(*ambient, day.n_steps))
+
+
+def write_log(tmp_path, frame, name="log.csv"):
+    path = tmp_path / name
+    frame.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.slow
+def test_twin_day_recovers_identifiable_parameters(tmp_path, bus12, model):
+    """13.5 h at 1 Hz, SoC quantised to 0.1 %: the fit reaches NRMSE < 0.02, every parameter
+    reported as well determined is within 10 % of its range of the truth, and the charging
+    parameters (which the day's twelve charging events pin down) are among them."""
+    frame = synthetic_log(model, twin_day(bus12, 13.5), TRUTH, soc_start=0.95, period_s=1.0,
+                          soc_step_pct=0.1)
+    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles,
+                       settings=ISOPTSettings(seed=1))
+    assert result.fit["nrmse"] < 0.02
+    assert result.fit["correlation"] > 0.99
+    for name, d in result.determinacy.items():
+        low, high = result.bounds[name]
+        if d.status == "well determined":
+            assert abs(result.values[name] - TRUTH[name]) <= 0.1 * (high - low), name
+    for name in ("cccv_taper.cv_soc_pct", "cccv_taper.decay_per_pct", "grid_charger.power_kw",
+                 "static_rcd.rcd_frac"):
+        assert result.determinacy[name].status == "well determined", name
+
+
+@pytest.mark.slow
+def test_twin_with_coarse_noisy_sparse_sampling_and_a_gap(tmp_path, bus12, model):
+    """0.5 Hz, SoC quantised to 1 % with noise, a 5-minute gap: still NRMSE < 0.02 over a
+    drive with a wide SoC range, and the parameters the drive cannot show are flagged."""
+    frame = synthetic_log(model, twin_day(bus12, 5.0, charging=False), TRUTH, soc_start=0.95,
+                          period_s=2.0, soc_step_pct=1.0, soc_noise_pct=0.2,
+                          gap_s=(3600.0, 3900.0))
+    log = load_log(write_log(tmp_path, frame), gaps="split")
+    assert len(log.profiles) == 2
+    result = calibrate(model, log.profiles, settings=ISOPTSettings(seed=2))
+    assert result.fit["nrmse"] < 0.02
+    # no charging in this drive: the charging parameters cannot be determined
+    for name in ("cccv_taper.cv_soc_pct", "cccv_taper.decay_per_pct", "grid_charger.power_kw"):
+        assert result.determinacy[name].status == "not determined", name
+
+
+def test_a_parameter_without_influence_is_flagged_not_a_value(tmp_path, bus12, model):
+    """The log gives the charger's rating, so the charger power parameter has no effect."""
+    day = twin_day(bus12, 3.0).with_channels(charger_rating_w=250e3)
+    frame = synthetic_log(model, day, TRUTH, soc_start=0.95)
+    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles,
+                       free=["grid_charger.power_kw", "static_rcd.rcd_frac"],
+                       settings=ISOPTSettings(seed=0, iterations=15))
+    assert result.determinacy["grid_charger.power_kw"].status == "not determined"
+    assert result.determinacy["static_rcd.rcd_frac"].status == "well determined"
+    assert result.values["static_rcd.rcd_frac"] == pytest.approx(0.12, abs=0.03)
+
+
+def test_upper_bound_strategy_changes_work_not_results(tmp_path, bus12, model):
+    frame = synthetic_log(model, twin_day(bus12, 2.0), TRUTH, soc_start=0.95)
+    profiles = load_log(write_log(tmp_path, frame)).profiles
+    settings = ISOPTSettings(seed=4, iterations=8)
+    with_ubs = CalibrationProblem(model, profiles, chunks=8)
+    without = CalibrationProblem(model, profiles, chunks=1)
+    a = isopt(with_ubs.cost, len(with_ubs.free), settings)
+    b = isopt(without.cost, len(without.free), settings)
+    np.testing.assert_allclose(a.x, b.x)
+    assert a.cost == pytest.approx(b.cost, rel=1e-12)
+    assert with_ubs.simulated_steps < 0.9 * without.simulated_steps
+
+
+@pytest.mark.slow
+def test_windowed_tuning_is_cheaper_and_fits(tmp_path, bus12, model):
+    frame = synthetic_log(model, twin_day(bus12, 8.0), TRUTH, soc_start=0.95)
+    profiles = load_log(write_log(tmp_path, frame)).profiles
+    offline = calibrate(model, profiles, settings=ISOPTSettings(seed=5), polish_starts=0)
+    windowed = calibrate(model, profiles, settings=ISOPTSettings(seed=5), windowed=True)
+    assert windowed.simulated_steps < 0.6 * offline.simulated_steps
+    assert windowed.fit["nrmse"] < 0.02
+    assert windowed.windows and all("prediction_nrmse" in w for w in windowed.windows[1:])
+
+
+# -- sparse logs -------------------------------------------------------------------------------
+def test_sparse_log_is_rebuilt_from_distance_and_fitted_at_its_samples(tmp_path, bus12, model):
+    day = twin_day(bus12, 4.0)
+    dense = synthetic_log(model, day, TRUTH, soc_start=0.95, period_s=1.0)
+    distance = np.concatenate([[0.0], np.cumsum(dense.speed_kmh.to_numpy()[1:] / 3.6)]) / 1000
+    every = dense.iloc[::300].copy()  # a sample every 5 minutes
+    every["distance_km"] = distance[::300]
+    sparse = every[["time_s", "distance_km", "soc_pct", "charging", "ambient_degc"]]
+    log = load_sparse_log(write_log(tmp_path, sparse), DT, max_speed_kmh=80.0)
+    profile = log.profile
+    rows = profile.sample_rows()
+    assert len(rows) == len(sparse)
+    travelled = np.cumsum(profile.channels["speed_ref_mps"]) * DT / 1000
+    np.testing.assert_allclose(travelled[rows[1:] - 1], sparse.distance_km.to_numpy()[1:],
+                               rtol=1e-6, atol=1e-3)  # every interval covers its distance
+    assert "scaled to their mean speed" in log.report.changes[0]
+    result = calibrate(model, [profile], settings=ISOPTSettings(seed=0, iterations=20))
+    assert result.fit["nrmse"] < 0.05
+    assert result.fit["samples"] == len(sparse)
+
+
+# -- bad input -------------------------------------------------------------------------------
+def test_bad_inputs_say_what_to_do(tmp_path, bus12, model):
+    day = twin_day(bus12, 1.0)
+    frame = synthetic_log(model, day, TRUTH, soc_start=0.95)
+    without_soc = frame.drop(columns="soc_pct")
+    profiles = load_log(write_log(tmp_path, without_soc)).profiles
+    with pytest.raises(ConfigError, match="has no measured SoC.*'soc_pct'"):
+        CalibrationProblem(model, profiles)
+    flat = frame.assign(soc_pct=80.0)
+    with pytest.raises(ConfigError, match="never changes"):
+        CalibrationProblem(model, load_log(write_log(tmp_path, flat)).profiles)
+    good = load_log(write_log(tmp_path, frame)).profiles
+    with pytest.raises(ConfigError, match="excludes its current value 0.*--fix"):
+        CalibrationProblem(model, good, bounds={"static_rcd.rcd_frac": (0.1, 0.2)})
+    with pytest.raises(ConfigError, match="never widen"):
+        CalibrationProblem(model, good, bounds={"static_rcd.rcd_frac": (0.0, 0.5)})
+    with pytest.raises(ConfigError, match="Unknown parameter 'static_rcd.rcd'"):
+        CalibrationProblem(model, good, free=["static_rcd.rcd"])
+    with pytest.raises(ConfigError, match="shorter than one window"):
+        calibrate(model, good, windowed=True)
+
+
+# -- command line ----------------------------------------------------------------------------
+def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    a = write_log(tmp_path, synthetic_log(model, twin_day(bus12, 2.0), TRUTH), "a.csv")
+    b = write_log(tmp_path, synthetic_log(model, twin_day(bus12, 2.0, ambient=(5, 9)), TRUTH),
+                  "b.csv")
+    runner = CliRunner()
+    result = runner.invoke(app, ["calibrate", str(a), "--validate", str(b), "--iterations", "10",
+                                 "--params", "static_rcd.rcd_frac,cabin_hvac.setpoint_degc",
+                                 "--out", str(tmp_path / "cal.yaml"),
+                                 "--json", str(tmp_path / "cal.json"),
+                                 "--plot", str(tmp_path / "fit.png"),
+                                 "--history", str(tmp_path / "hist.csv")],
+                           catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "cal.json").read_text())
+    for key in ("params", "nrmse", "rmse_pct", "max_abs_error_pct", "correlation", "validation",
+                "wall_time_s", "evaluations"):
+        assert key in data, key
+    assert set(data["params"]) == {"static_rcd.rcd_frac", "cabin_hvac.setpoint_degc"}
+    assert data["validation"]["nrmse"] < 0.05
+    assert (tmp_path / "fit.png").exists() and (tmp_path / "fit_history.png").exists()
+    # the overlay is a bus overlay that simulate accepts
+    sim = runner.invoke(app, ["simulate", "--cycle", "sort2", "--hours", "0.2", "--overlay",
+                              str(tmp_path / "cal.yaml"), "--json", str(tmp_path / "s.json")],
+                        catch_exceptions=False)
+    assert sim.exit_code == 0, sim.output
+    bad = runner.invoke(app, ["calibrate", str(a), "--range", "static_rcd.rcd_frac=0.1:0.2"])
+    assert bad.exit_code == 2 and "excludes its current value" in bad.output
+    missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope.csv")])
+    assert missing.exit_code == 2 and "does not exist" in missing.output
+
+
+def test_bmw_trip_calibration_improves_on_the_defaults():
+    """Real data: the BMW i3 on trip B16 (not a reserved trip)."""
+    model = load_bus("bmw_i3").build()
+    log = load_log(ROOT / "data/measured/bmw_i3_tum/TripB16_1hz.csv", model.dt_s,
+                   columns="bmw_i3_tum")
+    before = model.simulate(log.profile).summary()["soc_nrmse"]
+    result = calibrate(model, log.profiles, settings=ISOPTSettings(seed=0, iterations=20))
+    assert result.fit["nrmse"] < 0.5 * before
+    assert result.fit["correlation"] > 0.99
