@@ -328,7 +328,11 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         result.plot(plot)
         history_png = plot.with_name(plot.stem + "_history" + plot.suffix)
         result.plot_history(history_png)
-        console.print(f"plots -> {plot}, {history_png}")
+        written = [plot, history_png]
+        if result.determinacy:
+            written.append(plot.with_name(plot.stem + "_determinacy" + plot.suffix))
+            result.plot_determinacy(written[-1])
+        console.print(f"plots -> {', '.join(map(str, written))}")
     if history:
         import pandas as pd
 

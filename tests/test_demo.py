@@ -10,9 +10,12 @@ from ebus_env.demo import run_demo
 def test_demo_writes_a_self_contained_report(tmp_path):
     page = run_demo(tmp_path)
     html = page.read_text()
-    assert html.count("<img src='data:image/png;base64,") == 5
+    assert html.count("<img src='data:image/png;base64,") == 6
     assert "12m bus" in html and "BMW i3 trip B16" in html
     numbers = json.loads((tmp_path / "summary.json").read_text())
     assert 0.8 < numbers["12m_sort2_day"]["kwh_per_km"] < 1.6
     assert numbers["18m_sort2_day"]["kwh_per_km"] > numbers["12m_sort2_day"]["kwh_per_km"]
     assert numbers["bmw_i3_B16"]["soc_rmse_pct"] > 0
+    calibrated = numbers["bmw_i3_calibration"]
+    assert calibrated["nrmse"] < 0.5 * numbers["bmw_i3_B16"]["soc_nrmse"]
+    assert "validation" in calibrated and "calibrated with iSOPT on trip B16" in html

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
+from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
 from ebus_env.calibration.problem import CalibrationProblem
 from ebus_env.profile import Profile
@@ -111,8 +112,9 @@ class CalibrationResult:
             out["windows"] = self.windows
         return out
 
-    def plot(self, path: str | Path) -> None:
-        """Simulated vs measured SoC with the residual, calibration and validation."""
+    def plot(self, path) -> None:
+        """Simulated vs measured SoC with the residual, calibration and validation (to a path
+        or a binary file object, PNG)."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -134,7 +136,33 @@ class CalibrationResult:
             axes[1, j].set_xlabel("time [h]")
             for ax in axes[:, j]:
                 ax.grid(alpha=0.3)
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, format="png")
+        plt.close(fig)
+
+    def plot_determinacy(self, path) -> None:
+        """Cost along each parameter through the optimum, with the range that fits within
+        10 % of the best shaded: a flat curve is a parameter the data does not determine."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        names = [n for n in self.free if n in self.determinacy]
+        cols = min(4, len(names))
+        rows = -(-len(names) // cols)
+        fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.8 * rows), squeeze=False,
+                                 constrained_layout=True)
+        for ax, name in zip(axes.ravel(), names, strict=False):
+            d = self.determinacy[name]
+            ax.axvspan(d.low, d.high, color="C2", alpha=0.2)
+            ax.plot(d.grid, d.cost, "-o", ms=3)
+            ax.axvline(self.values[name], color="k", lw=0.8)
+            ax.set_yscale("log")
+            ax.set_title(f"{name}\n{d.status}", fontsize=8)
+            ax.set_xlabel(self.units[name], fontsize=8)
+        for ax in axes.ravel()[len(names):]:
+            ax.axis("off")
+        fig.savefig(path, dpi=100, format="png")
         plt.close(fig)
 
     def plot_history(self, path: str | Path) -> None:
@@ -153,69 +181,6 @@ class CalibrationResult:
         ax.grid(alpha=0.3, which="both")
         fig.savefig(path, dpi=110)
         plt.close(fig)
-
-
-def distinct_starts(x: np.ndarray, cost: np.ndarray, k: int = 4, min_distance: float = 0.25,
-                    within: float = 3.0) -> np.ndarray:
-    """Up to ``k`` good points at least ``min_distance`` apart (normalised, max-norm), best
-    first, among those costing at most ``within`` times the best: starts for polishing."""
-    order = np.argsort(cost, kind="stable")
-    chosen: list[int] = []
-    for i in order:
-        if not np.isfinite(cost[i]) or cost[i] > within * cost[order[0]]:
-            break
-        if all(np.max(np.abs(x[i] - x[j])) >= min_distance for j in chosen):
-            chosen.append(i)
-            if len(chosen) == k:
-                break
-    return x[chosen]
-
-
-def polish(problem: CalibrationProblem, starts: np.ndarray, iterations: int = 12,
-           step: float = 0.01) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Levenberg-Marquardt on the SoC residuals from several starts at once.
-
-    All starts advance in lock-step: per iteration one batched run gives every start's
-    forward-difference Jacobian, and a second tries three damping values per start. Steps are
-    projected onto the unit box. Returns (points, their NRMSE, their Jacobians)."""
-    u = np.clip(np.atleast_2d(starts).astype(float), 0.0, 1.0)
-    k, d = u.shape
-    r = problem.residuals(u)
-    f = np.sqrt(np.sum(r * r, axis=1))
-    damping = np.full(k, 1e-3)
-    jac = np.zeros((k, r.shape[1], d))
-    factors = np.array([0.1, 1.0, 10.0])
-
-    def jacobians(u, r):
-        signs = np.where(u + step <= 1.0, 1.0, -1.0)  # (k, d)
-        shifted = (u[:, None, :] + np.eye(d)[None] * (signs * step)[:, :, None]).reshape(-1, d)
-        rs = problem.residuals(shifted).reshape(k, d, -1)
-        return np.transpose((rs - r[:, None, :]) / (signs * step)[:, :, None], (0, 2, 1))
-
-    for _ in range(iterations):
-        jac = jacobians(u, r)
-        trials = np.zeros((k, len(factors), d))
-        for i in range(k):
-            jtj = jac[i].T @ jac[i]
-            g = jac[i].T @ r[i]
-            scale = np.diag(jtj) + 1e-12
-            for j, factor in enumerate(factors):
-                lam = damping[i] * factor
-                delta = np.linalg.solve(jtj + lam * np.diag(scale), -g)
-                trials[i, j] = np.clip(u[i] + delta, 0.0, 1.0)
-        rt = problem.residuals(trials.reshape(-1, d)).reshape(k, len(factors), -1)
-        ft = np.sqrt(np.sum(rt * rt, axis=2))
-        best = np.argmin(ft, axis=1)
-        improved = ft[np.arange(k), best] < f * (1 - 1e-6)
-        moved = 0.0
-        for i in np.flatnonzero(improved):
-            moved = max(moved, float(np.max(np.abs(trials[i, best[i]] - u[i]))))
-            u[i], r[i], f[i] = trials[i, best[i]], rt[i, best[i]], ft[i, best[i]]
-            damping[i] *= factors[best[i]] / 3.0
-        damping[~improved] *= 10.0
-        if not improved.any() or moved < 1e-5:
-            break
-    return u, f, jacobians(u, r)
 
 
 def determinacy(problem: CalibrationProblem, u_best: np.ndarray, cost_best: float,

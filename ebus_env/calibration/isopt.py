@@ -91,6 +91,7 @@ class ISOPTResult:
     history: History
     evaluations: int
     interrupted: bool = False
+    population: np.ndarray | None = None  # the final population, best first
 
 
 CostFunction = Callable[[np.ndarray, float], np.ndarray]
@@ -98,7 +99,8 @@ CostFunction = Callable[[np.ndarray, float], np.ndarray]
 
 def isopt(cost: CostFunction, dim: int, settings: ISOPTSettings | None = None,
           x0: np.ndarray | None = None,
-          callback: Callable[[int, float, int], None] | None = None) -> ISOPTResult:
+          callback: Callable[[int, float, int], None] | None = None,
+          population: np.ndarray | None = None) -> ISOPTResult:
     """Minimise ``cost`` over the unit box [0, 1]^dim.
 
     Parameters
@@ -112,6 +114,9 @@ def isopt(cost: CostFunction, dim: int, settings: ISOPTSettings | None = None,
         Constants; see :class:`ISOPTSettings`.
     x0
         Warm start: the first member of the initial population (e.g. the previous window's best).
+    population
+        Warm start with a whole population (e.g. the previous window's final one, re-evaluated
+        on the new data); fills the first members of the initial population.
     callback
         ``callback(iteration, best_cost, evaluations)`` after each iteration.
 
@@ -135,6 +140,9 @@ def isopt(cost: CostFunction, dim: int, settings: ISOPTSettings | None = None,
         return c
 
     pop = rng.uniform(0.0, 1.0, (n, dim))
+    if population is not None:
+        k = min(n, len(population))
+        pop[:k] = np.clip(np.asarray(population, dtype=float)[:k], 0.0, 1.0)
     if x0 is not None:
         pop[0] = np.clip(np.asarray(x0, dtype=float), 0.0, 1.0)
     interrupted = False
@@ -186,4 +194,4 @@ def isopt(cost: CostFunction, dim: int, settings: ISOPTSettings | None = None,
             record(it)
     except KeyboardInterrupt:
         interrupted = True
-    return ISOPTResult(pop[0].copy(), float(f[0]), history, evaluations, interrupted)
+    return ISOPTResult(pop[0].copy(), float(f[0]), history, evaluations, interrupted, pop.copy())

@@ -6,18 +6,23 @@ published; this is what is done here (every constant is a setting):
 1. **Windows by driving category.** Each minute of a log is charging (plugged in), idle
    (standing), stop-and-go (stands part of the minute) or constant speed. A window ends where
    the category changes, once it is at least ``min_window_min`` long (and at most
-   ``max_window_min``), so that windows close on whole charging events or drives.
-2. **Tune window by window.** After window w the parameters are tuned on all data up to its
-   end (an online tuner has exactly that), warm-started from the previous best: iSOPT searches
-   the whole box on the first window (``first_iterations``); afterwards a few
-   Levenberg-Marquardt iterations (``iterations``) refine the estimate, because a short iSOPT
-   run barely moves a 7-parameter population while a local step uses the new data at once.
+   ``max_window_min``), so that windows close on whole charging events or drives. The first
+   window lasts until it has seen every category of the log, so that its search can tell
+   every parameter (the charging ones need a charging event).
+2. **Tune window by window.** The first window gets a global search: iSOPT
+   (``first_iterations``), then a Levenberg-Marquardt polish of its best distinct points.
+   After each later window the estimate is refined on all data up to its end (an online tuner
+   has exactly that) with a few Levenberg-Marquardt iterations (``iterations``) from the
+   previous estimate, which first predicts the new window: that prediction error is what an
+   online user sees. (Local steps cannot leave a wrong valley; a global search on all data
+   so far at every window would cost as much as offline tuning.)
    Before tuning, the previous parameters predict window w: that prediction error is what an
    online user sees.
-3. **Stop when converged, else repeat over the day.** When the normalised parameters move by
-   less than ``tolerance`` on ``settle`` consecutive windows, tuning stops (the rest of the
-   data is not needed). If the day ends first, the whole day is tuned again, up to ``passes``
-   times.
+3. **Stop when converged, else repeat over the day.** When, on ``settle`` consecutive windows,
+   the normalised parameters move by less than ``tolerance`` and the previous estimate
+   predicts the new window within ``prediction_ratio`` times its fit so far, tuning stops (the
+   rest of the data is not needed). If the day ends first, the whole day is tuned again, up to
+   ``passes`` times.
 
 Early windows are short, later ones are warm-started and brief, and tuning stops once the
 estimate settles, so the total simulated time is well below offline tuning's.
@@ -30,6 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
+from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.problem import CalibrationProblem
 from ebus_env.errors import ConfigError
 from ebus_env.profile import STANDING_SPEED_MPS, Profile
@@ -42,10 +48,12 @@ class WindowSettings:
     min_window_min: float = 60.0
     max_window_min: float = 180.0
     first_iterations: int = 30
-    iterations: int = 3
+    iterations: int = 5
     tolerance: float = 0.03
-    settle: int = 2
+    settle: int = 3
     passes: int = 2
+    prediction_ratio: float = 1.5
+    nrmse_floor: float = 0.002  # fits below this count as equal (SoC resolution)
 
 
 def categorise(profile: Profile) -> np.ndarray:
@@ -73,10 +81,15 @@ def window_ends(profile: Profile, settings: WindowSettings) -> list[tuple[int, s
             f"Profile '{profile.name}' is {profile.duration_s / 60:.0f} min long, shorter than "
             f"one window ({settings.min_window_min:g} min): tune it offline (without "
             "--windowed) or give a longer log.")
+    # the first window lasts until it has seen every category the log has (a first search on
+    # a window without charging could not tell the charging parameters)
+    first_seen = max(int(np.flatnonzero(cat == c)[0]) for c in np.unique(cat))
     ends, start = [], 0
     for minute in range(1, len(cat) + 1):
         length = minute - start
         boundary = minute == len(cat) or cat[minute] != cat[minute - 1]
+        if not ends and minute <= first_seen:
+            continue
         if (boundary and length >= settings.min_window_min) or length >= settings.max_window_min:
             ends.append((minute * per_min, CATEGORIES[cat[minute - 1]]))
             start = minute
@@ -101,12 +114,13 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
     interrupted = False
     u: np.ndarray | None = None
     settled = 0
+    previous_fit = np.inf
     try:
         for sweep in range(ws.passes):
             steps = plan if sweep == 0 else plan[-1:]
             for k, (i, end, category) in enumerate(steps):
-                seen = profiles[:i] + [profiles[i].slice(0, end)]
-                sub = CalibrationProblem(problem.model, seen, problem.free, bounds, fixed,
+                data_seen = profiles[:i] + [profiles[i].slice(0, end)]
+                sub = CalibrationProblem(problem.model, data_seen, problem.free, bounds, fixed,
                                          problem.categorical, problem.chunks)
                 row = {"pass": sweep + 1, "end_h": (sum(p.duration_s for p in profiles[:i])
                                                     + end * profiles[i].dt_s) / 3600.0,
@@ -114,19 +128,23 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
                 if u is not None:
                     # the previous estimate predicts the new data (what an online user sees)
                     start = log[-1]["end_h"] if log and log[-1]["pass"] == sweep + 1 else 0.0
-                    row["prediction_nrmse"] = _window_error(problem, u, seen, start)
+                    row["prediction_nrmse"] = _window_error(problem, u, data_seen, start)
                 if u is None:
+                    # a global search on the first window
                     run = isopt(sub.cost, len(problem.free),
                                 replace(settings, iterations=ws.first_iterations,
                                         seed=settings.seed + 100 * sweep + k))
-                    new_u, cost, interrupted = run.x, run.cost, run.interrupted
-                    moved = np.inf
+                    interrupted = run.interrupted
+                    x_all, c_all = run.history.all_evaluated()
+                    starts = distinct_starts(x_all, c_all)
+                    row["search"] = "global"
                 else:
-                    from ebus_env.calibration.calibrate import polish
-
-                    points, _, _ = polish(sub, u[None], iterations=ws.iterations)
-                    new_u, cost = points[0], float(sub.cost(points)[0])
-                    moved = float(np.max(np.abs(new_u - u)))
+                    starts = u[None]
+                    row["search"] = "local"
+                points, _, _ = polish(sub, starts, iterations=ws.iterations)
+                costs = sub.cost(points)
+                new_u, cost = points[int(np.argmin(costs))], float(costs.min())
+                moved = np.inf if u is None else float(np.max(np.abs(new_u - u)))
                 spent += sub.evaluations
                 problem.simulated_steps += sub.simulated_steps
                 u = new_u
@@ -140,7 +158,12 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
                     progress(len(log), float(cost), spent)
                 if interrupted:
                     raise KeyboardInterrupt
-                settled = settled + 1 if moved < ws.tolerance else 0
+                # settled: the estimate stopped moving and predicted the new window about as
+                # well as it fits the data before it
+                predicted = row.get("prediction_nrmse", np.inf) <= ws.prediction_ratio * max(
+                    previous_fit, ws.nrmse_floor)
+                settled = settled + 1 if (moved < ws.tolerance and predicted) else 0
+                previous_fit = float(cost)
                 if settled >= ws.settle:
                     break
             if settled >= ws.settle:
