@@ -72,8 +72,11 @@ def offline_vs_windowed(model, cal, val, settings, seeds):
         runs = [calibrate(model, cal, settings=replace(settings, seed=seed), validate=val,
                           **kwargs) for seed in seeds]
         wall = statistics.median(r.wall_time_s for r in runs)
+        search = statistics.median(r.timings["search_s"] for r in runs)
         n = statistics.median(r.simulated_steps / steps for r in runs)
         line(label, f"{wall:.1f} s",
+             f"of which the search (iSOPT / windows) {search:.1f} s")
+        line("", "",
              f"median of {len(runs)} seeds: NRMSE "
              f"{statistics.median(r.fit['nrmse'] for r in runs):.4f}, validation "
              f"{statistics.median(r.validation['nrmse'] for r in runs):.4f}, "

@@ -64,6 +64,7 @@ class CalibrationResult:
     warnings: list[str] = field(default_factory=list)
     windows: list[dict] = field(default_factory=list)
     curves: dict = field(default_factory=dict)  # for plotting: label -> (t_h, sim, meas)
+    timings: dict = field(default_factory=dict)  # search_s, polish_s, determinacy_s
 
     def overlay(self) -> dict:
         """A bus-config overlay with the fitted values (``ebus simulate --overlay``)."""
@@ -98,6 +99,7 @@ class CalibrationResult:
             **{k: v for k, v in self.fit.items()},
             "validation": self.validation,
             "wall_time_s": self.wall_time_s,
+            "timings_s": self.timings,
             "evaluations": self.evaluations,
             "simulated_steps": self.simulated_steps,
             "method": self.method,
@@ -293,9 +295,12 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         best_u, best_cost, history = run.x, run.cost, run.history
         evaluations, interrupted = run.evaluations, run.interrupted
         method = "iSOPT"
+    timings = {"search_s": time.perf_counter() - t0}
+    search_evaluations = evaluations
     if polish_starts is None:
         polish_starts = 0 if windowed else 4
     det = {}
+    evaluations_before_polish = problem.evaluations
     if not interrupted:
         x_all, c_all = history.all_evaluated()
         starts = distinct_starts(np.vstack([best_u, x_all]), np.concatenate([[best_cost], c_all]),
@@ -306,9 +311,13 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         if costs[i] < best_cost:
             best_u, best_cost = points[i], float(costs[i])
             method += " + least-squares polish"
+        evaluations = search_evaluations + problem.evaluations - evaluations_before_polish
+        timings["polish_s"] = time.perf_counter() - t0 - timings["search_s"]
         near = (costs <= best_cost * (1 + NEAR_REL) + NEAR_ABS) & (np.arange(len(costs)) != i)
         det = determinacy(problem, best_u, best_cost, jacobians[i], points[near])
     tuning_s = time.perf_counter() - t0
+    timings["determinacy_s"] = tuning_s - sum(timings.values())
+    tuning_s -= timings["determinacy_s"]  # the report's extra runs are not tuning
     params = problem.params(best_u)[0]
     fit, curve = evaluate_fit(model, profiles, params)
     curves = {"calibration": (curve["t_h"], curve["sim"], curve["meas"])}
@@ -327,4 +336,4 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         fit=fit, validation=validation, determinacy=det, history=history,
         evaluations=evaluations, simulated_steps=problem.simulated_steps,
         wall_time_s=tuning_s, interrupted=interrupted, method=method, notes=notes,
-        warnings=list(problem.warnings), windows=windows, curves=curves)
+        warnings=list(problem.warnings), windows=windows, curves=curves, timings=timings)
