@@ -83,6 +83,12 @@ def offline_vs_windowed(model, cal, val, settings, seeds):
              f"{statistics.median(r.evaluations for r in runs):.0f} evaluations")
         line("    simulated: n full-data equivalents; T_opt vs n x T_sim", f"n = {n:.0f}",
              f"T_opt = {wall:.1f} s vs n x T_sim = {n * t_sim:.1f} s")
+        for name in runs[0].free:
+            low, high = runs[0].bounds[name]
+            errors = [100 * abs(r.values[name] - TRUTH[name]) / (high - low) for r in runs]
+            status = [r.determinacy[name].status.split()[0] for r in runs if r.determinacy]
+            line(f"    {name}", f"{statistics.median(errors):.1f} %",
+                 f"|fit - truth| / range (median); reported: {', '.join(status)}")
 
 
 def compare_optimisers(problem: CalibrationProblem, budget: int, target: float, seeds):

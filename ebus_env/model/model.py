@@ -224,7 +224,8 @@ class Model:
         acc : (N, n_acc) accumulators to add to (default: new ones)
         sample_mask : (n_rows,) bool: record only ``soc_frac`` at these rows, into
             ``record_out[:, :, 0]``, and skip the energy sums (calibration)
-        threads : split the buses over this many threads (default: all CPUs for N >= 4)
+        threads : split the buses over this many threads (default: all CPUs, when the run has
+            at least 50,000 bus-steps)
         python : run the uncompiled Python version of the same code
 
         Returns
@@ -271,7 +272,8 @@ class Model:
             return acc
         kernel = self.kernel(variant)
         threads = default_threads() if threads is None else max(1, threads)
-        threads = min(threads, n_bus) if n_bus >= 4 else 1
+        # split the buses over threads when there is enough work to pay for the hand-off
+        threads = min(threads, n_bus) if n_bus * n_steps >= 50_000 else 1
         if threads == 1:
             kernel(*args, 0, n_bus)
         else:
