@@ -136,8 +136,9 @@ def test_a_parameter_without_influence_is_flagged_not_a_value(tmp_path, bus12, m
     """The log gives the charger's rating, so the charger power parameter has no effect."""
     day = twin_day(bus12, 3.0).with_channels(charger_rating_w=250e3)
     frame = synthetic_log(model, day, TRUTH, soc_start=0.95)
-    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles,
-                       free=["grid_charger.power_kw", "static_rcd.rcd_frac"],
+    free = ["grid_charger.power_kw", "static_rcd.rcd_frac"]
+    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles, free=free,
+                       fixed={k: v for k, v in TRUTH.items() if k not in free},  # known
                        settings=ISOPTSettings(seed=0, iterations=15))
     assert result.determinacy["grid_charger.power_kw"].status == "not determined"
     assert result.determinacy["static_rcd.rcd_frac"].status == "well determined"
@@ -257,3 +258,14 @@ def test_bmw_trip_calibration_improves_on_the_defaults():
     result = calibrate(model, log.profiles, settings=ISOPTSettings(seed=0, iterations=20))
     assert result.fit["nrmse"] < 0.5 * before
     assert result.fit["correlation"] > 0.99
+
+
+def test_a_fit_far_above_the_noise_floor_claims_nothing(tmp_path, bus12, model):
+    """With the other parameters wrong, RCD alone cannot reach the log's noise: nothing may be
+    reported as well determined, and the report says why."""
+    frame = synthetic_log(model, twin_day(bus12, 3.0), TRUTH, soc_start=0.95)
+    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles,
+                       free=["static_rcd.rcd_frac"], settings=ISOPTSettings(seed=0, iterations=10))
+    assert result.fit["nrmse"] > 5 * 0.002
+    assert result.determinacy["static_rcd.rcd_frac"].status != "well determined"
+    assert any("noise floor" in w for w in result.warnings)

@@ -20,6 +20,10 @@ NEAR_REL = 0.10
 """Parameter values whose fit is within this fraction of the best NRMSE (plus ``NEAR_ABS``)
 count as "as good": their spread is how well the data determines a parameter."""
 NEAR_ABS = 5e-4
+NOISE_MULTIPLE = 2.0
+"""A fit more than this many times the log's own noise floor is not at the truth: either a
+better fit exists that no search found, or the model lacks an effect. No parameter is then
+reported as well determined."""
 
 
 @dataclass
@@ -315,6 +319,15 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         timings["polish_s"] = time.perf_counter() - t0 - timings["search_s"]
         near = (costs <= best_cost * (1 + NEAR_REL) + NEAR_ABS) & (np.arange(len(costs)) != i)
         det = determinacy(problem, best_u, best_cost, jacobians[i], points[near])
+        floor = problem.noise_nrmse()
+        if best_cost > NOISE_MULTIPLE * floor:
+            for d in det.values():
+                if d.status == "well determined":
+                    d.status = "weakly determined"
+            problem.warnings.append(
+                f"the best fit (NRMSE {best_cost:.4f}) is {best_cost / max(floor, 1e-12):.0f} "
+                f"times the log's noise floor ({floor:.4f}): a better fit may exist, or the "
+                "model lacks an effect, so no parameter is reported as well determined")
     tuning_s = time.perf_counter() - t0
     timings["determinacy_s"] = tuning_s - sum(timings.values())
     tuning_s -= timings["determinacy_s"]  # the report's extra runs are not tuning

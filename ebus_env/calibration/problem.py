@@ -279,6 +279,22 @@ class CalibrationProblem:
         self.evaluations += len(matrix)
         return np.concatenate(parts, axis=1)
 
+    def noise_nrmse(self) -> float:
+        """The NRMSE a perfect model would still have: the SoC log's own resolution and noise.
+
+        Quantisation to steps q leaves q / sqrt(12); white noise of standard deviation s shows
+        in second differences of the samples as s sqrt(6). The larger of the two, over the
+        measured range, is the floor."""
+        floors = []
+        for d in self.data:
+            steps = np.abs(np.diff(d.measured))
+            steps = steps[steps > 1e-9]
+            quantum = float(np.min(steps)) if steps.size else 0.0
+            white = float(np.std(np.diff(d.measured, 2)) / np.sqrt(6.0)) if len(d.measured) > 3 \
+                else 0.0
+            floors.append(max(quantum / np.sqrt(12.0), white))
+        return float(np.max(floors)) / self.span
+
     # -- reporting -------------------------------------------------------------------------
     def named(self, u: np.ndarray) -> dict[str, float]:
         return dict(zip(self.free, self.values(np.atleast_2d(u))[0].tolist(), strict=True))

@@ -128,7 +128,7 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
                 if u is not None:
                     # the previous estimate predicts the new data (what an online user sees)
                     start = log[-1]["end_h"] if log and log[-1]["pass"] == sweep + 1 else 0.0
-                    row["prediction_nrmse"] = _window_error(problem, u, data_seen, start)
+                    row["prediction_nrmse"] = _window_error(sub, u, start)
                 if u is None:
                     # a global search on the first window
                     run = isopt(sub.cost, len(problem.free),
@@ -177,21 +177,13 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
     return u, cost, history, spent + problem.evaluations, interrupted, log
 
 
-def _window_error(problem: CalibrationProblem, u: np.ndarray, seen: list[Profile],
-                  start_h: float) -> float:
+def _window_error(seen: CalibrationProblem, u: np.ndarray, start_h: float) -> float:
     """NRMSE of ``u`` on the data of ``seen`` after ``start_h`` hours (the new window)."""
-    check = CalibrationProblem(problem.model, seen, problem.free,
-                               {p: (problem.low[j], problem.high[j])
-                                for j, p in enumerate(problem.free)},
-                               {n: v for n, v in zip(problem.model.param_names, problem.base,
-                                                     strict=True) if n not in problem.free},
-                               problem.categorical, 1)
-    residual = check.residuals(u[None])[0] * np.sqrt(check.n_samples) * check.span
-    problem.simulated_steps += check.simulated_steps
-    offsets = np.concatenate([[0.0], np.cumsum([p.duration_s for p in seen])])[:-1] / 3600.0
+    residual = seen.residuals(u[None])[0] * np.sqrt(seen.n_samples) * seen.span
+    offsets = np.cumsum([0.0] + [d.profile.duration_s for d in seen.data])[:-1] / 3600.0
     times = np.concatenate([off + d.rows * d.profile.dt_s / 3600.0
-                            for off, d in zip(offsets, check.data, strict=True)])
+                            for off, d in zip(offsets, seen.data, strict=True)])
     new = times >= start_h - 1e-9
-    measured = np.concatenate([d.measured for d in check.data])[new]
+    measured = np.concatenate([d.measured for d in seen.data])[new]
     span = np.ptp(measured)
     return float(np.sqrt(np.mean(residual[new] ** 2)) / span) if span > 0 else float("nan")
