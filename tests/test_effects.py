@@ -185,9 +185,9 @@ def test_efficiency_map_converts_to_losses():
 
 BATTERY = dict(cells_series=204.0, cells_parallel=3.0, cell_capacity_ah=100.0,
                cell_resistance_mohm=1.0, connection_factor=1.2,
-               activation_energy_j_per_mol=25000.0, temperature_degc=25.0,
-               coulombic_efficiency=0.998, soc_min_frac=0.0, soc_max_frac=1.0,
-               max_charge_c_rate=3.0, max_discharge_c_rate=5.0)
+               activation_energy_j_per_mol=25000.0, coulombic_efficiency=0.998,
+               soc_min_frac=0.0, soc_max_frac=1.0, max_charge_c_rate=3.0,
+               max_discharge_c_rate=5.0)
 
 
 def battery_tables():
@@ -198,7 +198,7 @@ def battery_tables():
 @pytest.mark.parametrize("fn", both("rint_battery", "state"))
 def test_battery_state(fn):
     ocv_table, r_table = battery_tables()
-    ocv, r, q, charge_a, charge_w, discharge_w = fn(0.5, 1.0, 1.0, 0.1, *BATTERY.values(),
+    ocv, r, q, charge_a, charge_w, discharge_w = fn(0.5, 1.0, 1.0, 25.0, 0.1, *BATTERY.values(),
                                                     ocv_table, r_table)
     assert ocv == pytest.approx(204 * 3.270)  # A123 OCV at 50 %
     assert r == pytest.approx(1e-3 * 204 / 3 * 1.2)
@@ -206,15 +206,14 @@ def test_battery_state(fn):
     assert charge_a == 900.0 and charge_w == pytest.approx(900 * (ocv + r * 900))
     assert discharge_w == pytest.approx(1500 * (ocv - r * 1500))
     # ageing shrinks capacity and raises resistance; cold raises resistance (Arrhenius)
-    _, r_aged, q_aged, *_ = fn(0.5, 0.8, 1.3, 0.1, *BATTERY.values(), ocv_table, r_table)
+    _, r_aged, q_aged, *_ = fn(0.5, 0.8, 1.3, 25.0, 0.1, *BATTERY.values(), ocv_table, r_table)
     assert q_aged == 240.0 and r_aged == pytest.approx(1.3 * r)
-    cold = {**BATTERY, "temperature_degc": 0.0}
-    r_cold = fn(0.5, 1.0, 1.0, 0.1, *cold.values(), ocv_table, r_table)[1]
+    r_cold = fn(0.5, 1.0, 1.0, 0.0, 0.1, *BATTERY.values(), ocv_table, r_table)[1]
     assert r_cold / r == pytest.approx(math.exp(25000 / 8.314 * (1 / 273.15 - 1 / 298.15)))
     # a full pack accepts no charge; an empty one gives no power
-    assert fn(1.0, 1.0, 1.0, 0.1, *BATTERY.values(), ocv_table, r_table)[3] == 0.0
+    assert fn(1.0, 1.0, 1.0, 25.0, 0.1, *BATTERY.values(), ocv_table, r_table)[3] == 0.0
     empty = {**BATTERY, "soc_min_frac": 0.1}
-    assert fn(0.05, 1.0, 1.0, 0.1, *empty.values(), ocv_table, r_table)[5] == 0.0
+    assert fn(0.05, 1.0, 1.0, 25.0, 0.1, *empty.values(), ocv_table, r_table)[5] == 0.0
 
 
 @pytest.mark.parametrize("fn", both("rint_battery", "update"))
@@ -296,3 +295,30 @@ def test_tables_off_any_small_grid_are_approximated_not_exploded():
     table = encode1("t", [0.0, 5.5, 5.5001, 24.0], [1.0, 1.0, 0.0, 0.0])
     assert int(table[2]) == MAX_POINTS
     assert lookup1(table, 2.0) == 1.0 and lookup1(table, 10.0) == 0.0
+
+
+@pytest.mark.parametrize("fn", both("regen_soc_limit"))
+def test_regen_soc_limit_derates_at_high_soc(fn):
+    assert fn(1.0, 0.5, 1.5, 1.0, 90.0) == 0.0  # below the cutoff
+    assert fn(5.0, 0.5, 1.5, 1.0, 90.0) == 1.0
+    assert fn(5.0, 0.95, 1.5, 1.0, 90.0) == pytest.approx(0.5)
+    assert fn(5.0, 1.0, 1.5, 1.0, 90.0) == 0.0
+
+
+@pytest.mark.parametrize("fn", both("passenger_schedule"))
+def test_passenger_schedule_peaks(fn):
+    from ebus_env.effects.vehicle import COMMUTER_SHAPE
+
+    table = COMMUTER_SHAPE.resolve().encode("load_shape")
+    assert fn(math.nan, 8.0, 0.2, 0.9, 100.0, table) == pytest.approx(90.0)
+    assert fn(math.nan, 12.0, 0.2, 0.9, 100.0, table) == pytest.approx(100 * (0.2 + 0.7 * 0.4))
+    assert fn(math.nan, 2.0, 0.2, 0.9, 100.0, table) == pytest.approx(20.0)
+    assert fn(33.0, 8.0, 0.2, 0.9, 100.0, table) == 33.0
+
+
+@pytest.mark.parametrize("fn", both("ambient_battery"))
+def test_ambient_battery_follows_the_ambient(fn):
+    temp, nxt = fn(20.0, 0.0, 3600.0, 1.0, 0.0)  # one time constant in one step
+    assert temp == 20.0 and nxt == pytest.approx(0.0)
+    temp, nxt = fn(20.0, 0.0, 36.0, 1.0, 0.0)
+    assert nxt == pytest.approx(20.0 - 20.0 * 0.01)

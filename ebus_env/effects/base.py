@@ -127,6 +127,7 @@ class Effect:
     states: tuple[State, ...] = ()
     inputs: tuple[Input, ...] = ()
     drivers: tuple[str, ...] = ()
+    key_params: tuple[str, ...] = ()
     doc: str = ""
     _jitted: dict = field(default_factory=dict, repr=False)
 
@@ -166,6 +167,8 @@ class Effect:
                         f"Effect '{self.name}': argument '{arg}' may not contain '__' (reserved "
                         "for generated names)."
                     )
+        for name in self.key_params:
+            self.param(name)
         for state in self.states:
             if not any(state.name + "_next" in c.returns for c in self.calls.values()):
                 raise ValueError(
@@ -185,6 +188,12 @@ class Effect:
             if t.name == name:
                 return t
         raise unknown_name(f"table of effect '{self.name}'", name, [t.name for t in self.tables])
+
+    @property
+    def strength_params(self) -> tuple[str, ...]:
+        """Parameters that set how strong the effect is (diagnosis estimates them, the error
+        ladder frees them): ``key_params``, else the first parameter."""
+        return self.key_params or tuple(p.name for p in self.params[:1])
 
     @property
     def role(self) -> str:
@@ -222,14 +231,16 @@ def effect(
     inputs: Sequence[Input] = (),
     returns: Sequence[str] = (),
     drivers: Sequence[str] = (),
+    key_params: Sequence[str] = (),
     register_effect: bool = True,
 ):
     """Decorator that turns a function into a registered single-call effect.
 
     For a contribution, the function returns the contribution followed by ``returns`` (extra
     signals); for a slot, it returns the slot's required outputs followed by ``returns``.
-    The decorated name is the :class:`Effect` itself; its function stays reachable as
-    ``effect.calls["main"].function`` for the uncompiled run.
+    ``key_params`` name the parameters that set the effect's strength (diagnosis estimates
+    them; default: the first). The decorated name is the :class:`Effect` itself; its function
+    stays reachable as ``effect.calls["main"].function`` for the uncompiled run.
     """
 
     def wrap(function: Callable) -> Effect:
@@ -249,6 +260,7 @@ def effect(
             states=tuple(states),
             inputs=tuple(inputs),
             drivers=tuple(drivers),
+            key_params=tuple(key_params),
             doc=inspect.getdoc(function) or "",
         )
         if register_effect:

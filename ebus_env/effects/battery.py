@@ -3,6 +3,7 @@
 Pack of N_s cells in series and N_p in parallel::
 
     Q     = Q_cell N_p (1 - RCD)                               capacity [Ah]
+    T     = battery_temp_degc from the battery_thermal slot    [degC]
     OCV   = N_s OCV_cell(SoC)                                  open-circuit voltage [V]
     R     = R_cell N_s / N_p k_conn f(SoC) exp(Ea/R_g (1/T - 1/T_ref)) (1 + k_R RCD)
     I     = 2 P / (OCV + sqrt(OCV^2 - 4 R P))                  current for terminal power P
@@ -63,8 +64,6 @@ BATTERY_PARAMS = (
           "physics.md 5.2: 1.1-1.3"),
     Param("activation_energy_j_per_mol", 25000.0, "J/mol", (0.0, 60000.0),
           "Arrhenius activation energy Ea of the resistance", "LFP ~25 kJ/mol, NMC ~30 kJ/mol"),
-    Param("temperature_degc", 25.0, "degC", (-30.0, 60.0),
-          "Pack temperature T (thermally managed)"),
     Param("coulombic_efficiency", 0.998, "1", (0.95, 1.0), "Coulombic efficiency on charge eta_c",
           "physics.md 5.3"),
     Param("soc_min_frac", 0.0, "1", (0.0, 0.3),
@@ -76,9 +75,9 @@ BATTERY_PARAMS = (
 )
 
 
-def battery_state(soc_frac, capacity_factor, resistance_factor, dt_s, cells_series,
-                  cells_parallel, cell_capacity_ah, cell_resistance_mohm, connection_factor,
-                  activation_energy_j_per_mol, temperature_degc, coulombic_efficiency,
+def battery_state(soc_frac, capacity_factor, resistance_factor, battery_temp_degc, dt_s,
+                  cells_series, cells_parallel, cell_capacity_ah, cell_resistance_mohm,
+                  connection_factor, activation_energy_j_per_mol, coulombic_efficiency,
                   soc_min_frac, soc_max_frac, max_charge_c_rate, max_discharge_c_rate,
                   ocv_cell_v, resistance_soc_factor):
     """OCV [V], resistance [Ohm], capacity [Ah] and the current/power limits of this step.
@@ -89,7 +88,7 @@ def battery_state(soc_frac, capacity_factor, resistance_factor, dt_s, cells_seri
     capacity_ah = cell_capacity_ah * cells_parallel * capacity_factor
     ocv_v = cells_series * lookup1(ocv_cell_v, soc_pct)
     arrhenius = math.exp(activation_energy_j_per_mol / _GAS_CONSTANT_J_PER_MOL_K
-                         * (1.0 / (temperature_degc + 273.15) - 1.0 / _T_REF_K))
+                         * (1.0 / (battery_temp_degc + 273.15) - 1.0 / _T_REF_K))
     resistance_ohm = (cell_resistance_mohm * 1e-3 * cells_series / cells_parallel
                       * connection_factor * lookup1(resistance_soc_factor, soc_pct)
                       * arrhenius * resistance_factor)
@@ -156,3 +155,30 @@ rint_battery = register(Effect(
 def static_rcd(rcd_frac, resistance_growth):
     """Static ageing: capacity factor 1 - RCD and resistance factor 1 + k_R RCD."""
     return 1.0 - rcd_frac, 1.0 + resistance_growth * rcd_frac
+
+
+# -- battery temperature (the battery_thermal slot) ------------------------------------------
+@effect("managed_temperature", slot="battery_thermal", params=[
+    Param("temperature_degc", 25.0, "degC", (-30.0, 60.0),
+          "Pack temperature T held by the thermal management"),
+])
+def managed_temperature(temperature_degc):
+    """A thermally managed pack: constant temperature T [degC]."""
+    return temperature_degc
+
+
+@effect("ambient_battery", slot="battery_thermal", drivers=("ambient_degc",),
+        returns=("cell_temp_degc_next",), key_params=("initial_offset_k",), params=[
+    Param("time_constant_h", 3.0, "h", (0.1, 48.0),
+          "Time constant tau of the pack temperature following the ambient"),
+    Param("initial_offset_k", 0.0, "K", (-20.0, 30.0),
+          "Pack temperature above ambient at the start of the run"),
+], states=[
+    State("cell_temp_degc", "degC", "Pack temperature without thermal management",
+          lambda p, x: x.get("ambient_degc", 20.0) + p["initial_offset_k"]),
+])
+def ambient_battery(cell_temp_degc, ambient_degc, dt_s, time_constant_h, initial_offset_k):
+    """A pack without thermal management: its temperature follows the ambient,
+    dT/dt = (T_amb - T) / tau, so a cold day raises its resistance (Arrhenius)."""
+    next_temp = cell_temp_degc + (ambient_degc - cell_temp_degc) * (dt_s / (3600.0 * time_constant_h))
+    return cell_temp_degc, next_temp

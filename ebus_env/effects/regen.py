@@ -21,3 +21,21 @@ def regen_cutoff(speed_mps, cutoff_speed_mps, max_share):
     if speed_mps > cutoff_speed_mps:
         return max_share
     return 0.0
+
+
+@effect("regen_soc_limit", slot="regen", drivers=("speed_mps", "soc_frac"),
+        key_params=("derate_soc_pct",), params=[
+    Param("cutoff_speed_mps", 1.5, "m/s", (0.0, 5.0),
+          "Speed below which regenerative braking is off, v_cut", "Hasan et al. 2023"),
+    Param("max_share", 1.0, "1", (0.1, 1.0),
+          "Largest share of the braking force the motor takes above v_cut"),
+    Param("derate_soc_pct", 90.0, "%", (50.0, 99.9),
+          "SoC above which the BMS derates regeneration, reaching zero at 100 %"),
+])
+def regen_soc_limit(speed_mps, soc_frac, cutoff_speed_mps, max_share, derate_soc_pct):
+    """Regenerative braking with the cutoff speed of ``regen_cutoff``, derated by the BMS at
+    high SoC: share = max_share * min(1, (100 - SoC) / (100 - SoC_derate)) (SoC in %)."""
+    if speed_mps <= cutoff_speed_mps:
+        return 0.0
+    headroom = (100.0 - 100.0 * soc_frac) / (100.0 - derate_soc_pct)
+    return max_share * min(1.0, max(headroom, 0.0))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from ebus_env.effects.base import Param, effect
+from ebus_env.effects.tables import Table, TableData, lookup1
 from ebus_env.units import PASSENGER_MASS_KG
 
 
@@ -45,3 +46,29 @@ def passenger_load(passenger_count, load_frac, max_passengers):
 def passenger_mass(passengers, passenger_mass_kg):
     """Mass of the passengers: m_pax = n * m_p [kg]."""
     return passengers * passenger_mass_kg
+
+
+COMMUTER_SHAPE = Table(
+    "load_shape", "1", "Passenger load over the time of day [h] (x), 0 at base, 1 at peak",
+    presets={"commuter": TableData(
+        (0.0, 5.0, 6.0, 7.5, 9.0, 10.0, 15.0, 16.5, 18.0, 19.5, 22.0, 24.0),
+        (0.0, 0.0, 0.3, 1.0, 1.0, 0.4, 0.4, 1.0, 1.0, 0.3, 0.0, 0.0),
+        source="morning and evening commuter peaks [P]")},
+    default="commuter",
+)
+
+
+@effect("passenger_schedule", slot="passengers", drivers=("time_of_day_h",),
+        tables=[COMMUTER_SHAPE], key_params=("peak_frac",), params=[
+    Param("base_frac", 0.2, "1", (0.0, 1.0), "Load between the peaks, fraction of n_max"),
+    Param("peak_frac", 0.9, "1", (0.0, 1.0), "Load at the peaks, fraction of n_max"),
+    Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max"),
+])
+def passenger_schedule(passenger_count, time_of_day_h, base_frac, peak_frac, max_passengers,
+                       load_shape):
+    """Passengers over the day: the measured count where the profile has one, else
+    n = n_max (base + (peak - base) shape(time of day)), with commuter peaks."""
+    if not math.isnan(passenger_count):
+        return passenger_count
+    shape = lookup1(load_shape, time_of_day_h)
+    return max_passengers * (base_frac + (peak_frac - base_frac) * shape)

@@ -22,6 +22,18 @@ def _state(model, vector, name):
     return float(vector[model.state_names.index(name)])
 
 
+def battery_energy_j(model, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Energy out of the battery's terminals and out of its chemical store [J], from
+    accumulators (one row per bus): terminal = motor + DC loads - charger;
+    chemical = terminal - shortfall + ohmic + coulombic losses."""
+    acc = np.atleast_2d(acc)
+    col = {n: acc[:, i] for i, n in enumerate(model.accumulator_names)}
+    terminal = col["motor"] + sum((col[t] for t in model.layout.load_terms), 0.0) - col["charger"]
+    chemical = (terminal - col["battery_shortfall"] + col["battery_ohmic_loss"]
+                + col["coulombic_loss"])
+    return terminal, chemical
+
+
 def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
               profile) -> dict:
     """Figures of one run from its accumulators, its first/last state and its profile."""
@@ -34,9 +46,9 @@ def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
     wheel = kwh["inertia"] + sum(kwh[t] for t in road)
     kwh["friction_brake"] = (kwh["traction"] - kwh["regen_recovered"]) - wheel
     kwh["drivetrain_loss"] = kwh["motor"] - (kwh["traction"] - kwh["regen_recovered"])
-    kwh["battery_terminal"] = kwh["motor"] + sum(kwh[t] for t in loads) - kwh["charger"]
-    kwh["battery_chemical"] = (kwh["battery_terminal"] - kwh["battery_shortfall"]
-                               + kwh["battery_ohmic_loss"] + kwh["coulombic_loss"])
+    terminal, chemical = battery_energy_j(model, acc)
+    kwh["battery_terminal"] = float(terminal[0]) / J_PER_KWH
+    kwh["battery_chemical"] = float(chemical[0]) / J_PER_KWH
     kwh["charger_loss"] = kwh["grid"] - kwh["charger"]
     distance_km = _state(model, final, "distance_m") / 1000.0
     consumed = kwh["battery_chemical"] + kwh["charger"]

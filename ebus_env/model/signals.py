@@ -102,6 +102,8 @@ SLOTS: dict[str, Slot] = {
         Slot("aging", "Battery ageing: capacity and resistance factors",
              {"main": ("capacity_factor", "resistance_factor")}, default="static_rcd",
              none={"capacity_factor": 1.0, "resistance_factor": 1.0}),
+        Slot("battery_thermal", "Battery pack temperature",
+             {"main": ("battery_temp_degc",)}, default="managed_temperature"),
         Slot("battery", "Battery pack: open-circuit voltage, resistance, limits, state of charge",
              {"state": ("ocv_v", "resistance_ohm", "capacity_ah", "charge_current_max_a",
                         "charge_power_max_w", "discharge_power_max_w"),
