@@ -82,10 +82,19 @@ class BusConfig:
 
     # -- changing the composition ---------------------------------------------------------
     def with_effect(self, item: str | Effect) -> BusConfig:
-        """A copy with an effect added (a contribution) or put in its slot."""
+        """A copy with an effect added (a contribution) or put in its slot; the values and
+        bounds of the effect it replaces carry over to the parameters of the same name."""
         eff = item if isinstance(item, Effect) else resolve_effect(item)
         new = copy.deepcopy(self)
         if eff.slot is not None:
+            from ebus_env.model.signals import SLOTS
+
+            old = new.slots.get(eff.slot, SLOTS[eff.slot].default)
+            names = {p.name for p in eff.params}
+            for store in (new.params, new.bounds):
+                shared = {k: v for k, v in (store.get(old) or {}).items() if k in names}
+                if old != eff.name and shared:
+                    store[eff.name] = {**shared, **(store.get(eff.name) or {})}
             new.slots[eff.slot] = eff.name
         elif eff.name not in new.contributions:
             new.contributions.append(eff.name)

@@ -6,7 +6,7 @@ from ebus_env.effects.base import Param, effect
 from ebus_env.effects.tables import Table, TableData, lookup1
 
 
-@effect("auxiliaries", sink="dc_load_w", params=[
+@effect("auxiliaries", sink="dc_load_w", label="constant auxiliary load", params=[
     Param("base_power_w", 4000.0, "W", (0.0, 30000.0), "Constant auxiliary load P_aux,0",
           "12 m: 3-5 kW, 18 m: 5-7 kW; TransitBus 5 kW (physics.md 3.2)"),
 ])
@@ -26,7 +26,8 @@ SCHEDULE = Table(
 )
 
 
-@effect("aux_schedule", sink="dc_load_w", drivers=("time_of_day_h",), tables=[SCHEDULE], params=[
+@effect("aux_schedule", sink="dc_load_w", label="auxiliary load over the time of day",
+        drivers=("time_of_day_h",), tables=[SCHEDULE], params=[
     Param("scale", 1.0, "1", (0.0, 5.0), "Factor on the scheduled load"),
 ])
 def aux_schedule(time_of_day_h, scale, schedule_w):

@@ -128,6 +128,8 @@ class Effect:
     inputs: tuple[Input, ...] = ()
     drivers: tuple[str, ...] = ()
     key_params: tuple[str, ...] = ()
+    refines: str | None = None
+    label: str = ""
     doc: str = ""
     _jitted: dict = field(default_factory=dict, repr=False)
 
@@ -196,6 +198,17 @@ class Effect:
         return self.key_params or tuple(p.name for p in self.params[:1])
 
     @property
+    def builtin(self) -> bool:
+        """Whether the effect ships with ebus-env (not a user's file)."""
+        return all(c.function.__module__.startswith("ebus_env.effects")
+                   for c in self.calls.values())
+
+    @property
+    def title(self) -> str:
+        """The physics in words, for reports."""
+        return self.label or self.name.replace("_", " ")
+
+    @property
     def role(self) -> str:
         return f"sink {self.sink}" if self.sink else f"slot {self.slot}"
 
@@ -232,6 +245,8 @@ def effect(
     returns: Sequence[str] = (),
     drivers: Sequence[str] = (),
     key_params: Sequence[str] = (),
+    refines: str | None = None,
+    label: str = "",
     register_effect: bool = True,
 ):
     """Decorator that turns a function into a registered single-call effect.
@@ -239,7 +254,10 @@ def effect(
     For a contribution, the function returns the contribution followed by ``returns`` (extra
     signals); for a slot, it returns the slot's required outputs followed by ``returns``.
     ``key_params`` name the parameters that set the effect's strength (diagnosis estimates
-    them; default: the first). The decorated name is the :class:`Effect` itself; its function
+    them; default: the first). A slot effect that ``refines`` another adds physics to it (the
+    same slot, more detail): diagnosis offers it as a missing effect where the simpler one
+    fills the slot. ``label`` names the physics in words for reports ("cabin heating and
+    cooling"; default: the name). The decorated name is the :class:`Effect` itself; its function
     stays reachable as ``effect.calls["main"].function`` for the uncompiled run.
     """
 
@@ -261,6 +279,8 @@ def effect(
             inputs=tuple(inputs),
             drivers=tuple(drivers),
             key_params=tuple(key_params),
+            refines=refines,
+            label=label,
             doc=inspect.getdoc(function) or "",
         )
         if register_effect:

@@ -146,7 +146,7 @@ rint_battery = register(Effect(
 ))
 
 
-@effect("static_rcd", slot="aging", params=[
+@effect("static_rcd", slot="aging", label="battery ageing", params=[
     Param("rcd_frac", 0.0, "1", (0.0, 0.3), "Relative capacity degradation RCD",
           "Hasan et al. 2023, tuned parameter (< 25 %)"),
     Param("resistance_growth", 1.5, "1", (0.0, 3.0),
@@ -158,7 +158,7 @@ def static_rcd(rcd_frac, resistance_growth):
 
 
 # -- battery temperature (the battery_thermal slot) ------------------------------------------
-@effect("managed_temperature", slot="battery_thermal", params=[
+@effect("managed_temperature", slot="battery_thermal", label="managed pack temperature", params=[
     Param("temperature_degc", 25.0, "degC", (-30.0, 60.0),
           "Pack temperature T held by the thermal management"),
 ])
@@ -167,8 +167,10 @@ def managed_temperature(temperature_degc):
     return temperature_degc
 
 
-@effect("ambient_battery", slot="battery_thermal", drivers=("ambient_degc",),
-        returns=("cell_temp_degc_next",), key_params=("initial_offset_k",), params=[
+@effect("ambient_battery", slot="battery_thermal", label="cold battery resistance",
+        drivers=("ambient_degc",),
+        returns=("cell_temp_degc_next",), key_params=("initial_offset_k",),
+        refines="managed_temperature", params=[
     Param("time_constant_h", 3.0, "h", (0.1, 48.0),
           "Time constant tau of the pack temperature following the ambient"),
     Param("initial_offset_k", 0.0, "K", (-20.0, 30.0),

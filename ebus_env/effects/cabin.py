@@ -8,7 +8,7 @@ from ebus_env.units import AIR_CP_J_PER_KG_K
 _AIR_DENSITY_KG_PER_M3 = 1.2
 
 
-@effect("cabin_hvac", sink="dc_load_w", key_params=("ua_w_per_k",),
+@effect("cabin_hvac", sink="dc_load_w", label="cabin heating and cooling", key_params=("ua_w_per_k",),
         returns=("hvac_heat_w", "cabin_temp_degc_next"),
         drivers=("ambient_degc", "door_open", "passengers", "solar_w_per_m2"),
         params=[

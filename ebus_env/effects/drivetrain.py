@@ -159,6 +159,8 @@ efficiency_map = register(Effect(
     params=MOTOR_PARAMS,
     tables=(LOSS_MAP,),
     drivers=("speed_mps", "motor_force_n"),
+    refines="constant_efficiency",
+    label="motor losses over torque and speed",
     doc=__doc__,
 ))
 

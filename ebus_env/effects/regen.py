@@ -5,7 +5,7 @@ from __future__ import annotations
 from ebus_env.effects.base import Param, effect
 
 
-@effect("regen_cutoff", slot="regen", drivers=("speed_mps",), params=[
+@effect("regen_cutoff", slot="regen", label="regen cutoff at low speed", drivers=("speed_mps",), params=[
     Param("cutoff_speed_mps", 1.5, "m/s", (0.0, 5.0),
           "Speed below which regenerative braking is off, v_cut", "Hasan et al. 2023"),
     Param("max_share", 1.0, "1", (0.1, 1.0),
@@ -23,8 +23,8 @@ def regen_cutoff(speed_mps, cutoff_speed_mps, max_share):
     return 0.0
 
 
-@effect("regen_soc_limit", slot="regen", drivers=("speed_mps", "soc_frac"),
-        key_params=("derate_soc_pct",), params=[
+@effect("regen_soc_limit", slot="regen", label="regen derated at high SoC", drivers=("speed_mps", "soc_frac"),
+        key_params=("derate_soc_pct",), refines="regen_cutoff", params=[
     Param("cutoff_speed_mps", 1.5, "m/s", (0.0, 5.0),
           "Speed below which regenerative braking is off, v_cut", "Hasan et al. 2023"),
     Param("max_share", 1.0, "1", (0.1, 1.0),

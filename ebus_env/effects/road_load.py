@@ -16,7 +16,7 @@ from ebus_env.effects.base import Param, effect
 from ebus_env.units import GRAVITY_MPS2
 
 
-@effect("aero_drag", sink="road_force_n", drivers=("speed_mps",), params=[
+@effect("aero_drag", sink="road_force_n", label="aerodynamic drag", drivers=("speed_mps",), params=[
     Param("drag_coef", 0.70, "1", (0.2, 1.0), "Drag coefficient c_d",
           "ADVISOR 0.79, sidrobus 0.6, TransitBus 0.65 (physics.md 3.2)"),
     Param("frontal_area_m2", 7.5, "m^2", (1.0, 10.0), "Frontal area A",
@@ -28,7 +28,8 @@ def aero_drag(speed_mps, drag_coef, frontal_area_m2, air_density_kg_per_m3):
     return 0.5 * air_density_kg_per_m3 * drag_coef * frontal_area_m2 * speed_mps * speed_mps
 
 
-@effect("rolling_resistance", sink="road_force_n", drivers=("mass_kg", "speed_mps"), params=[
+@effect("rolling_resistance", sink="road_force_n", label="rolling resistance",
+        drivers=("mass_kg", "speed_mps"), params=[
     Param("rolling_coef", 0.008, "1", (0.003, 0.02), "Rolling-resistance coefficient C_rr",
           "ADVISOR 0.008 (Bosch); WVU 0.0094; SwRI 0.01"),
 ])
@@ -40,7 +41,7 @@ def rolling_resistance(speed_mps, mass_kg, grade_frac, rolling_coef):
     return mass_kg * GRAVITY_MPS2 * rolling_coef * (1.0 / math.sqrt(1.0 + grade_frac * grade_frac))
 
 
-@effect("road_grade", sink="road_force_n", drivers=("grade_frac",))
+@effect("road_grade", sink="road_force_n", label="road grade", drivers=("grade_frac",))
 def road_grade(mass_kg, grade_frac):
     """Weight component along the road: F = m g sin(alpha) [N] (> 0 uphill)."""
     return mass_kg * GRAVITY_MPS2 * grade_frac * (1.0 / math.sqrt(1.0 + grade_frac * grade_frac))

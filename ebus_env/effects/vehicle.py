@@ -24,7 +24,7 @@ def vehicle_body(curb_mass_kg, rotational_mass_factor, max_speed_kmh, max_brake_
     return curb_mass_kg, rotational_mass_factor, max_speed_kmh / 3.6, max_brake_decel_mps2
 
 
-@effect("passenger_load", slot="passengers", params=[
+@effect("passenger_load", slot="passengers", label="constant passenger load", params=[
     Param("load_frac", 0.5, "1", (0.0, 1.0),
           "Passenger load as a fraction of max_passengers (paper's categories: driver only 0, "
           "half load 0.5, full load 1)", "Hasan et al. 2023, tuned parameter"),
@@ -39,7 +39,7 @@ def passenger_load(passenger_count, load_frac, max_passengers):
     return passenger_count
 
 
-@effect("passenger_mass", sink="mass_kg", drivers=("passengers",), params=[
+@effect("passenger_mass", sink="mass_kg", label="passenger mass", drivers=("passengers",), params=[
     Param("passenger_mass_kg", PASSENGER_MASS_KG, "kg", (50.0, 100.0), "Mass per passenger m_p",
           "UN ECE R107 design mass"),
 ])
@@ -58,8 +58,9 @@ COMMUTER_SHAPE = Table(
 )
 
 
-@effect("passenger_schedule", slot="passengers", drivers=("time_of_day_h",),
-        tables=[COMMUTER_SHAPE], key_params=("peak_frac",), params=[
+@effect("passenger_schedule", slot="passengers", label="passenger load over the day",
+        drivers=("time_of_day_h",),
+        tables=[COMMUTER_SHAPE], key_params=("peak_frac", "base_frac"), refines="passenger_load", params=[
     Param("base_frac", 0.2, "1", (0.0, 1.0), "Load between the peaks, fraction of n_max"),
     Param("peak_frac", 0.9, "1", (0.0, 1.0), "Load at the peaks, fraction of n_max"),
     Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max"),

@@ -17,6 +17,8 @@ column                 required  meaning
 ``door_open``                    1 while doors are open
 ``battery_current_a``            pack current, > 0 discharging
 ``battery_voltage_v``            pack voltage
+``cabin_temp_degc``              cabin air temperature (the model's cabin starts at the
+                                 first value)
 =====================  ========  ====================================================
 
 Files named otherwise are mapped with ``columns`` (``{"Velocity [km/h]": "speed_kmh"}`` or
@@ -45,7 +47,7 @@ from ebus_env.resample import grid, resample
 CANONICAL = {
     "time_s", "timestamp", "speed_kmh", "speed_mps", "soc_pct", "soc_frac", "ambient_degc",
     "grade_pct", "grade_frac", "altitude_m", "charging", "charger_kw", "passengers", "door_open",
-    "solar_w_per_m2", "battery_current_a", "battery_voltage_v",
+    "solar_w_per_m2", "battery_current_a", "battery_voltage_v", "cabin_temp_degc",
 }
 FLAGS = ("charging", "door_open")
 GAP_POLICIES = ("error", "split", "hold", "interpolate")

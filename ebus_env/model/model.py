@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ebus_env.effects.base import Effect, Param, get_effect
-from ebus_env.errors import CompositionError, ConfigError, unknown_name
+from ebus_env.errors import CompositionError, ConfigError, EbusError, unknown_name
 from ebus_env.model import codegen
 from ebus_env.model.signals import SINKS, SLOTS
 from ebus_env.profile import Profile
@@ -89,6 +89,31 @@ class Model:
 
     def has_effect(self, name: str) -> bool:
         return name in self._effects
+
+    def equivalent(self, name: str) -> str | None:
+        """This model's parameter that plays the role of ``name`` (``effect.param``): the
+        same one, or the same-named parameter of the effect that fills the slot of ``name``'s
+        effect (``regen_soc_limit.cutoff_speed_mps`` for ``regen_cutoff.cutoff_speed_mps``)."""
+        if name in self._param_index:
+            return name
+        effect_name, _, short = name.partition(".")
+        try:
+            original = get_effect(effect_name)
+        except EbusError:
+            return None
+        current = self.composition.slots.get(original.slot) if original.slot else None
+        same = f"{current.name}.{short}" if current is not None else ""
+        return same if same in self._param_index else None
+
+    def carry_over(self, values: Mapping[str, float]) -> dict[str, float]:
+        """``values`` by qualified name, renamed to this model's equivalents (see
+        :meth:`equivalent`); those without one are dropped."""
+        out = {}
+        for name, value in values.items():
+            mine = self.equivalent(name)
+            if mine is not None:
+                out[mine] = value
+        return out
 
     def param_info(self, name: str) -> Param:
         """Declaration of a parameter by qualified name (``effect.param``)."""
@@ -176,6 +201,16 @@ class Model:
                 raise unknown_name("state", name, values)
             values[name] = float(value)
         return np.array([values[n] for n in self.state_names], dtype=float)
+
+    def measured_states(self, profile: Profile) -> dict[str, float]:
+        """Initial states the log measured (``cabin_temp_degc``...): each state other than SoC
+        that the profile has as a measured signal, at its first finite value."""
+        out = {}
+        for name in self.state_names:
+            values = profile.measured.get(name)
+            if name != "soc_frac" and values is not None and np.isfinite(values).any():
+                out[name] = float(values[np.flatnonzero(np.isfinite(values))[0]])
+        return out
 
     def new_accumulators(self, n_bus: int) -> np.ndarray:
         """Zeroed accumulators (sums 0, maxima -inf, minima +inf) for ``n_bus`` buses."""
@@ -303,7 +338,8 @@ class Model:
         record
             Keep the trace of every signal (every ``record_every`` steps).
         initial
-            Other initial states by name (``cabin_temp_degc=5.0``).
+            Other initial states by name (``cabin_temp_degc=5.0``); default: those the profile
+            measured (:meth:`measured_states`), else the effects' own.
         """
         from ebus_env.model.results import SimulationResult
 
@@ -311,6 +347,7 @@ class Model:
         inputs = self.input_array(profile)
         if soc_start is None:
             soc_start = _first_measured_soc(profile)
+        initial = {**self.measured_states(profile), **initial}
         state = self.initial_state(vec, self._first_inputs(inputs), soc_start, **initial)
         states = state[None, :].copy()
         n = inputs.shape[1]
@@ -340,7 +377,9 @@ class Model:
         if soc_start is None:
             soc_start = _first_measured_soc(profile)
         first = self._first_inputs(inputs)
-        states0 = np.array([self.initial_state(row, first, soc_start) for row in matrix])
+        measured = self.measured_states(profile)
+        states0 = np.array([self.initial_state(row, first, soc_start, **measured)
+                            for row in matrix])
         states = states0.copy()
         sel = np.array([self.trace_names.index(n) for n in record], dtype=np.int64)
         n = inputs.shape[1]
