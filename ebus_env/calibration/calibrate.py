@@ -13,7 +13,7 @@ import numpy as np
 from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
 from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
-from ebus_env.calibration.problem import CalibrationProblem
+from ebus_env.calibration.problem import Blocks, CalibrationProblem
 from ebus_env.profile import Profile
 
 NEAR_REL = 0.10
@@ -231,9 +231,12 @@ def determinacy(problem: CalibrationProblem, u_best: np.ndarray, cost_best: floa
     return out
 
 
-def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray) -> tuple[dict, dict]:
-    """Fit statistics of a parameter vector on profiles (each from its measured first SoC),
-    and the curves for plotting."""
+def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
+                 blocks: Blocks | None = None) -> tuple[dict, dict]:
+    """Fit statistics of a parameter vector on profiles (each from its measured first SoC, or
+    scored on ``blocks``), and the curves for plotting."""
+    if blocks is not None:
+        return _evaluate_blocks(model, profiles, params, blocks)
     sims, meas, times = [], [], []
     sim_energy = meas_energy = 0.0
     have_power = True
@@ -268,25 +271,47 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray) -> tupl
     return fit, {"t_h": np.concatenate(times), "sim": sim, "meas": mea}
 
 
+def _evaluate_blocks(model, profiles, params, blocks: Blocks) -> tuple[dict, dict]:
+    """SoC fit statistics on the scored blocks (the SoC restarting at each block)."""
+    problem = CalibrationProblem(model, profiles, [model.param_names[0]], chunks=1,
+                                 blocks=blocks)
+    sims, meas, times = [], [], []
+    offset = 0.0
+    for d in problem.data:
+        sims.append(problem.simulate(d, params[None, :])[0])
+        meas.append(d.measured)
+        times.append((offset + d.rows * d.profile.dt_s) / 3600.0)
+        offset += d.profile.duration_s
+    fit = soc_fit(np.concatenate(sims), np.concatenate(meas))
+    return fit, {"t_h": np.concatenate(times), "sim": np.concatenate(sims),
+                 "meas": np.concatenate(meas)}
+
+
 def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
               bounds: Mapping[str, Sequence[float]] | None = None,
               fixed: Mapping[str, float] | None = None, settings: ISOPTSettings | None = None,
               validate: Sequence[Profile] | None = None, windowed: bool = False,
               categorical_load: bool = False, chunks: int = 8,
               progress: Callable[[int, float, int], None] | None = None,
-              window_settings=None, polish_starts: int | None = None) -> CalibrationResult:
+              window_settings=None, polish_starts: int | None = None,
+              start: Sequence[Mapping[str, float]] = (), blocks: Blocks | None = None,
+              validate_blocks: Blocks | None = None) -> CalibrationResult:
     """Fit the free parameters of ``model`` to the measured SoC of ``profiles``.
 
     Offline: one iSOPT run over the whole data (the population evaluated in one batched call of
     the compiled core per phase), then a Levenberg-Marquardt polish from the ``polish_starts``
-    best distinct points it found (default 4; 0 for none). Windowed: see
+    best distinct points it found (default 4; 0 for none); the points in ``start`` (values by
+    name, the model's own for the free parameters one omits) join the initial population.
+    ``blocks`` and ``validate_blocks`` score only some blocks of the profiles (see
+    :class:`~ebus_env.calibration.problem.Blocks`). Windowed: see
     :mod:`ebus_env.calibration.windowed` (no polish by default: it would cost full-day runs).
     Then the Jacobian and the other local optima tell how well the data determines each
     parameter, and the fitted model is scored on the calibration and ``validate`` profiles.
     """
     t0 = time.perf_counter()
     settings = settings or ISOPTSettings()
-    problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks)
+    problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks,
+                                 blocks=blocks)
     windows: list[dict] = []
     if windowed:
         from ebus_env.calibration.windowed import tune_windowed
@@ -295,7 +320,9 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
             problem, settings, window_settings, progress)
         method = "iSOPT, windowed"
     else:
-        run = isopt(problem.cost, len(problem.free), settings, callback=progress)
+        seeds = problem.points(start) if start else None
+        run = isopt(problem.cost, len(problem.free), settings, callback=progress,
+                    population=seeds)
         best_u, best_cost, history = run.x, run.cost, run.history
         evaluations, interrupted = run.evaluations, run.interrupted
         method = "iSOPT"
@@ -332,11 +359,11 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     timings["determinacy_s"] = tuning_s - sum(timings.values())
     tuning_s -= timings["determinacy_s"]  # the report's extra runs are not tuning
     params = problem.params(best_u)[0]
-    fit, curve = evaluate_fit(model, profiles, params)
+    fit, curve = evaluate_fit(model, profiles, params, blocks)
     curves = {"calibration": (curve["t_h"], curve["sim"], curve["meas"])}
     validation = None
     if validate:
-        validation, vcurve = evaluate_fit(model, validate, params)
+        validation, vcurve = evaluate_fit(model, validate, params, validate_blocks)
         curves["validation"] = (vcurve["t_h"], vcurve["sim"], vcurve["meas"])
     notes = list(problem.notes)
     if interrupted:

@@ -37,6 +37,14 @@ PAPER_PARAMS = (
 )
 """The seven uncertain parameters Hasan et al. 2023 tune, by qualified name."""
 
+
+
+def paper_params(model) -> list[str]:
+    """The paper's parameters this model has, under their names in it (a slot filled by a
+    refinement keeps them: ``regen_soc_limit.cutoff_speed_mps``)."""
+    return [m for m in map(model.equivalent, PAPER_PARAMS) if m is not None]
+
+
 LOAD_LEVELS = (0.0, 0.5, 1.0)
 """The paper's passenger-load categories: driver only, half load, full load."""
 
@@ -79,6 +87,22 @@ def outside(x: np.ndarray, low: float | None, high: float | None, scale: float) 
     return total
 
 
+@dataclass(frozen=True)
+class Blocks:
+    """Blocks of the profiles: the model runs through each profile without a break (every
+    state carries on), but its SoC restarts from the measured one at each block's start,
+    and only the samples of the blocks that are ``scored`` count."""
+
+    starts: tuple[np.ndarray, ...]  # per profile: first row of each block
+    scored: tuple[np.ndarray, ...]  # per profile: bool per block
+
+
+def measured_soc_at(profile: Profile, rows) -> np.ndarray:
+    """Measured SoC at rows, interpolated between the log's samples."""
+    samples = profile.sample_rows("soc_frac")
+    return np.interp(rows, samples, profile.measured["soc_frac"][samples])
+
+
 @dataclass
 class _Data:
     """One profile's inputs and measured SoC samples."""
@@ -91,6 +115,16 @@ class _Data:
     soc_start: float
     first: dict
     initial: dict
+    anchors: dict  # row -> measured SoC the model restarts from there
+
+    def edges(self, chunks: int) -> list[int]:
+        """Rows where a run stops: chunk ends and anchors."""
+        n = self.inputs.shape[1]
+        return sorted({*np.linspace(0, n, chunks + 1).astype(int).tolist(), *self.anchors})
+
+    def anchor(self, row: int, states: np.ndarray, soc_index: int) -> None:
+        if row in self.anchors:
+            states[:, soc_index] = self.anchors[row]
 
 
 class CalibrationProblem:
@@ -115,20 +149,24 @@ class CalibrationProblem:
     initial
         Per profile, initial states other than SoC (``cabin_temp_degc``...), e.g. carried over
         from the window before; SoC always starts at the first measured value.
+    blocks
+        Score only some blocks of each profile, the SoC restarting at each block's start
+        (held-out validation); default: every sample, one run from the first.
     """
 
     def __init__(self, model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
                  bounds: Mapping[str, Sequence[float]] | None = None,
                  fixed: Mapping[str, float] | None = None, categorical_load: bool = False,
-                 chunks: int = 8, initial: Sequence[Mapping[str, float]] | None = None):
+                 chunks: int = 8, initial: Sequence[Mapping[str, float]] | None = None,
+                 blocks: Blocks | None = None):
         self.model = model
         self.notes: list[str] = []
         self.warnings: list[str] = []
         fixed = dict(fixed or {})
         self.base = model.param_vector(fixed)
         if free is None:
-            free = [p for p in PAPER_PARAMS if p in model.param_names]
-            missing = [p for p in PAPER_PARAMS if p not in model.param_names]
+            free = paper_params(model)
+            missing = [p for p in PAPER_PARAMS if model.equivalent(p) is None]
             if missing:
                 self.notes.append(f"the model lacks {', '.join(missing)}: not fitted")
         free = [p for p in free if p not in fixed]
@@ -162,7 +200,9 @@ class CalibrationProblem:
         self.categorical = categorical_load and "passenger_load.load_frac" in self.free
         self.chunks = max(1, int(chunks))
         initial = list(initial) if initial is not None else [{} for _ in profiles]
-        self.data = [self._prepare(p, dict(init)) for p, init in zip(profiles, initial, strict=True)]
+        self.data = [self._prepare(p, dict(init), blocks, k)
+                     for k, (p, init) in enumerate(zip(profiles, initial, strict=True))]
+        self.soc_index = model.state_names.index("soc_frac")
         all_meas = np.concatenate([d.measured for d in self.data])
         self.n_samples = len(all_meas)
         self.span = float(np.max(all_meas) - np.min(all_meas))
@@ -174,7 +214,7 @@ class CalibrationProblem:
         self.simulated_steps = 0
 
     # -- data ------------------------------------------------------------------------------
-    def _prepare(self, profile: Profile, initial: dict) -> _Data:
+    def _prepare(self, profile: Profile, initial: dict, blocks: Blocks | None, k: int) -> _Data:
         soc = profile.measured.get("soc_frac")
         if soc is None or not np.isfinite(soc).any():
             raise ConfigError(f"Profile '{profile.name}' has no measured SoC: calibration fits "
@@ -182,6 +222,13 @@ class CalibrationProblem:
                               "column.")
         rows = profile.sample_rows("soc_frac")
         rows = rows[np.isfinite(soc[rows])]
+        anchors = {}
+        if blocks is not None:
+            starts = np.asarray(blocks.starts[k], int)
+            block = np.searchsorted(starts, rows, side="right") - 1
+            rows = rows[np.asarray(blocks.scored[k], bool)[block]]
+            anchors = dict(zip(starts.tolist(), measured_soc_at(profile, starts).tolist(),
+                               strict=True))
         if len(rows) < 2:
             raise ConfigError(f"Profile '{profile.name}' has fewer than two SoC samples.")
         inputs = self.model.input_array(profile)
@@ -196,7 +243,9 @@ class CalibrationProblem:
             self.warnings.append(
                 f"{profile.name}: {short.size} charging event(s) shorter than 1 min (at "
                 f"{', '.join(f'{starts[i] * profile.dt_s:.0f} s' for i in short[:5])})")
-        return _Data(profile, inputs, mask, rows, soc[rows], float(soc[rows[0]]), first, initial)
+        initial = {**self.model.measured_states(profile), **initial}
+        soc_start = anchors.get(0, float(soc[rows[0]]))
+        return _Data(profile, inputs, mask, rows, soc[rows], soc_start, first, initial, anchors)
 
     # -- parameters ------------------------------------------------------------------------
     def values(self, u: np.ndarray) -> np.ndarray:
@@ -210,6 +259,15 @@ class CalibrationProblem:
 
     def normalise(self, values: np.ndarray) -> np.ndarray:
         return (np.asarray(values, dtype=float) - self.low) / (self.high - self.low)
+
+    def points(self, named: Sequence[Mapping[str, float]]) -> np.ndarray:
+        """Normalised points (n, n_free) for values by name (the model's own where a point
+        omits a free parameter), clipped to the box."""
+        rows = np.tile(self.base[self.index], (len(named), 1))
+        for row, values in zip(rows, named, strict=True):
+            for i, name in enumerate(self.free):
+                row[i] = values.get(name, row[i])
+        return np.clip(self.normalise(rows), 0.0, 1.0)
 
     def params(self, u: np.ndarray) -> np.ndarray:
         """Full parameter matrix (n, n_params) for normalised points ``u``."""
@@ -239,11 +297,11 @@ class CalibrationProblem:
             states = np.array([self.model.initial_state(matrix[i], d.first, d.soc_start,
                                                         **d.initial) for i in alive])
             acc = self.model.new_accumulators(len(alive))
-            n_rows = d.inputs.shape[1]
-            edges = np.linspace(0, n_rows, self.chunks + 1).astype(int)
+            edges = d.edges(self.chunks)
             for a, b in zip(edges[:-1], edges[1:], strict=True):
                 if b <= a or alive.size == 0:
                     continue
+                d.anchor(a, states, self.soc_index)
                 in_chunk = (d.rows >= a) & (d.rows < b)
                 out = np.zeros((len(alive), int(in_chunk.sum()), 1), np.float32)
                 self.model.run(matrix[alive], states, d.inputs, step0=np.full(len(alive), a),
@@ -270,14 +328,27 @@ class CalibrationProblem:
         parts = []
         scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
         for d in self.data:
-            states = np.array([self.model.initial_state(row, d.first, d.soc_start, **d.initial)
-                               for row in matrix])
-            out = np.zeros((len(matrix), len(d.rows), 1), np.float32)
-            self.model.run(matrix, states, d.inputs, record_out=out, sample_mask=d.mask)
-            self.simulated_steps += len(matrix) * d.inputs.shape[1]
-            parts.append((out[:, :, 0].astype(float) - d.measured) * scale)
+            parts.append((self.simulate(d, matrix) - d.measured) * scale)
         self.evaluations += len(matrix)
         return np.concatenate(parts, axis=1)
+
+    def simulate(self, d: _Data, matrix: np.ndarray) -> np.ndarray:
+        """(n, n_samples) simulated SoC of parameter rows at a profile's compared samples."""
+        states = np.array([self.model.initial_state(row, d.first, d.soc_start, **d.initial)
+                           for row in matrix])
+        out = np.zeros((len(matrix), len(d.rows), 1), np.float32)
+        edges = d.edges(1)
+        done = 0
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            d.anchor(a, states, self.soc_index)
+            n_out = int(np.count_nonzero((d.rows >= a) & (d.rows < b)))
+            part = np.zeros((len(matrix), max(n_out, 1), 1), np.float32)
+            self.model.run(matrix, states, d.inputs, step0=np.full(len(matrix), a),
+                           n_steps=b - a, record_out=part, sample_mask=d.mask)
+            out[:, done:done + n_out] = part[:, :n_out]
+            done += n_out
+        self.simulated_steps += len(matrix) * d.inputs.shape[1]
+        return out[:, :, 0].astype(float)
 
     def noise_nrmse(self) -> float:
         """The NRMSE a perfect model would still have: the SoC log's own resolution and noise.
