@@ -1,0 +1,23 @@
+"""Diagnostics: compare the model with measurements, see where it fails, learn which physical
+effect is missing, add it and watch the error fall.
+
+1. :mod:`~ebus_env.diagnostics.residual`: the battery power the model misses, window by window,
+   the model restarted from the measured SoC at each window; by operating mode and by bins.
+2. :mod:`~ebus_env.diagnostics.quality`: deviations the log cannot have physically (data
+   problems, not model problems); their windows are left out.
+3. :mod:`~ebus_env.diagnostics.candidates`: what each registered effect the model lacks, and
+   each parameter of the effects it has, would add along the trip (its signature).
+4. :mod:`~ebus_env.diagnostics.attribution`: which signature explains the missing power on
+   held-out windows (robust, cross-validated, sparse), and the verdict.
+5. :mod:`~ebus_env.diagnostics.clues`: what the missing power moves with, for effects the
+   library lacks.
+6. :mod:`~ebus_env.diagnostics.ladder`: NRMSE before and after each added effect, re-calibrated,
+   on calibration and held-out blocks.
+
+:func:`diagnose` runs them all; :mod:`~ebus_env.diagnostics.report` writes the console, JSON
+and HTML report; :mod:`~ebus_env.diagnostics.hidden` makes service days with a hidden effect.
+"""
+
+from ebus_env.diagnostics.diagnose import Diagnosis, diagnose
+
+__all__ = ["Diagnosis", "diagnose"]

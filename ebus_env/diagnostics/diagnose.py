@@ -1,0 +1,340 @@
+"""Diagnosis of a model against a measured log: where it fails, which effect is missing, what
+kind of effect to write when the library lacks it, which deviations are data problems, and how
+the error falls as effects are added.
+
+``diagnose(bus, profiles)`` runs the whole chain (see the package docstring) and returns a
+:class:`Diagnosis`; its ``to_json``, ``text`` and ``write_html`` give the report.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ebus_env.calibration.isopt import ISOPTSettings
+from ebus_env.config import BusConfig
+from ebus_env.diagnostics import attribution, clues, quality, residual
+from ebus_env.diagnostics.candidates import (
+    effect_candidates,
+    estimate_strength,
+    model_with,
+    parameter_candidates,
+)
+from ebus_env.diagnostics.ladder import (
+    Rung,
+    as_effect,
+    calibrate_rung,
+    error_ladder,
+    fit_on_blocks,
+    in_blocks,
+    split_blocks,
+)
+
+WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
+"""Default window per basis: SoC needs minutes to rise above its quantisation; measured
+current x voltage is a power already."""
+WORST = 5
+START_UP_S = 120.0
+"""Windows that start this soon after the start of a log are left out of the attribution:
+the log does not say when the driver switched the heater or other systems on."""
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report shows (``to_json`` for the machine-readable part)."""
+
+    bus: str
+    logs: list[str]
+    basis: str
+    window_s: float
+    verdict: str | None
+    sentence: str
+    why: str
+    significance: float  # of the missing power above noise, in standard deviations
+    ranking: list[dict]
+    parameters: list[dict]
+    selected: list[str]
+    set_aside: list[dict]
+    modes: list[dict]
+    bins: dict[str, list[dict]]
+    worst_windows: list[dict]
+    clues: list[dict]
+    data_issues: list[dict]
+    excluded_windows: int
+    nrmse: dict
+    calibration: dict | None
+    ladder: list[Rung]
+    timings: dict
+    # arrays behind the plots
+    windows: residual.Windows = field(repr=False)
+    missing_w: np.ndarray = field(repr=False)
+    noise_w: np.ndarray = field(repr=False)
+    usable: np.ndarray = field(repr=False)
+    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict explains
+    runs: list = field(repr=False)  # free-running model, each profile
+    after_runs: list = field(repr=False)  # the model "after" (nrmse["after_is"])
+    anchored: list = field(repr=False)  # the window-anchored runs
+    after_label: str = ""
+
+    def to_json(self) -> dict:
+        keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "significance",
+                "ranking", "parameters", "selected", "set_aside", "modes", "bins",
+                "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
+                "calibration", "timings")
+        out = {k: getattr(self, k) for k in keys}
+        out["ladder"] = [r.to_json() for r in self.ladder]
+        return _plain(out)
+
+    def write_json(self, path) -> None:
+        import json
+        from pathlib import Path
+
+        Path(path).write_text(json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
+
+    def write_html(self, path) -> None:
+        from ebus_env.diagnostics.report import write_html
+
+        write_html(self, path)
+
+    def text(self) -> str:
+        from ebus_env.diagnostics.report import text_report
+
+        return text_report(self)
+
+
+def _plain(value):
+    """JSON-safe copy: numpy scalars to Python, NaN/inf to None."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def _class_table(names, missing, noise, share, usable, hours) -> list[dict]:
+    p, se = residual.decompose(missing[usable], noise[usable], share[usable])
+    rows = []
+    for i, name in enumerate(names):
+        if hours[i] <= 0:
+            continue
+        rows.append({"class": name, "hours": round(float(hours[i]), 3),
+                     "missing_kw": float(p[i]) / 1e3, "stderr_kw": float(se[i]) / 1e3,
+                     "missing_kwh": float(p[i]) / 1e3 * float(hours[i])})
+    return rows
+
+
+def _breakdowns(anchored, windows, missing, noise, usable) -> tuple[list[dict], dict]:
+    """Missing power by operating mode and by bins of the binned signals."""
+    every = anchored[0].record_every
+    hours_per_row = every * anchored[0].profile.dt_s / 3600.0
+    labels = [residual.operating_modes(r) for r in anchored]
+    share = residual.fractions(labels, windows, every, len(residual.MODES))
+    hours = np.bincount(np.concatenate(labels), minlength=len(residual.MODES)) * hours_per_row
+    modes = [{"mode": r.pop("class"), **r} for r in
+             _class_table(residual.MODES, missing, noise, share, usable, hours)]
+    bins = {}
+    signals = [residual.binned_signals(r) for r in anchored]
+    for name, (edges, names) in residual.BINS.items():
+        labels = [np.clip(np.digitize(s[name], edges) - 1, 0, len(names) - 1) for s in signals]
+        share = residual.fractions(labels, windows, every, len(names))
+        hours = np.bincount(np.concatenate(labels), minlength=len(names)) * hours_per_row
+        bins[name] = _class_table(names, missing, noise, share, usable, hours)
+    return modes, bins
+
+
+def _worst(anchored, windows, missing, noise, usable) -> list[dict]:
+    """The windows where the model misses most, relative to their noise, with context."""
+    score = np.where(usable, np.abs(missing) / np.maximum(noise, 1.0), -np.inf)
+    out = []
+    for w in np.argsort(-score)[:WORST]:
+        if not np.isfinite(score[w]):
+            break
+        r = anchored[windows.profile_index[w]]
+        rows = windows.rows(w, r.record_every)
+        mode = np.bincount(residual.operating_modes(r)[rows], minlength=len(residual.MODES))
+        out.append({
+            "start_h": float(windows.start_h[w]),
+            "end_h": float(windows.start_h[w] + windows.duration_h[w]),
+            "time_of_day_h": float(residual.channel(r, "time_of_day_h")[rows][0]),
+            "missing_kw": float(missing[w]) / 1e3, "stderr_kw": float(noise[w]) / 1e3,
+            "mean_speed_kmh": float(3.6 * np.mean(r.trace("speed_mps")[rows])),
+            "ambient_degc": float(np.mean(residual.channel(r, "ambient_degc")[rows])),
+            "soc_pct": float(100 * np.mean(r.trace("soc_frac")[rows])),
+            "main_mode": residual.MODES[int(np.argmax(mode))],
+        })
+    return out
+
+
+def _sentence(verdict, ranking, estimate, model, why) -> str:
+    if verdict is None:
+        return f"No missing effect is supported by the data: {why}."
+    top = next(a for a in ranking if a["effect"] == verdict)
+    eff = top["object"]
+    title = eff.title[:1].upper() + eff.title[1:]
+    text = (f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
+            "of the missing battery power on held-out windows")
+    for name, value in estimate.items():
+        info = model.param_info(name)
+        unit = "" if info.unit == "1" else f" {info.unit}"
+        shown = f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
+        text += f"; {name.split('.', 1)[1]} about {shown}{unit}"
+    return text + "."
+
+
+def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
+             add: Sequence = (), window_s: float | None = None, settings=None,
+             polish_starts: int | None = None, loader_notes: Sequence[str] = (),
+             progress=None) -> Diagnosis:
+    """Diagnose ``bus`` against measured ``profiles`` (see the module docstring).
+
+    ``calibrate`` fits the paper's parameters on the calibration blocks first (see
+    :mod:`ebus_env.diagnostics.ladder`); ``add`` lists effects for the error ladder (each
+    added and re-calibrated in turn).
+    """
+    say = progress or (lambda text: None)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    profiles = list(profiles)
+    dt_s = profiles[0].dt_s
+    blocks = split_blocks(profiles)
+    model = bus.build(dt_s)
+    values: dict = {}
+    first_rung, calibration = None, None
+    if calibrate or add:
+        say("calibrating the model as given")
+        first_rung = calibrate_rung(bus, [], profiles, *blocks, dt_s, settings, polish_starts)
+        values = first_rung.values
+        calibration = first_rung.calibration_result.to_json()
+        timings["calibration_s"] = time.perf_counter() - t0
+    params = model.param_vector(values)
+
+    t1 = time.perf_counter()
+    every = max(1, int(round(1.0 / dt_s)))  # diagnose on a 1 s grid
+    basis = residual.POWER_BASIS if all(map(residual.has_power, profiles)) \
+        else residual.SOC_BASIS
+    window_s = window_s or WINDOW_S[basis]
+    windows = residual.make_windows(profiles, window_s, every)
+    anchored = [residual.anchored_run(model, p, params, windows, k, every)
+                for k, p in enumerate(profiles)]
+    energy = residual.soc_energy_j(anchored, windows)
+    base_power = residual.window_power(model, profiles, params, windows, basis, energy)[0]
+    measured, noise, enough = residual.measured_power(profiles, windows, basis, energy,
+                                                      anchored)
+    missing = measured - base_power
+    issues, usable = quality.data_issues(anchored, windows, model, params, measured, base_power,
+                                         loader_notes)
+    usable &= enough
+    excluded = int(np.sum(enough & ~usable))
+    start_up = windows.start_step * dt_s < START_UP_S
+    usable &= ~start_up
+    timings["residual_s"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    say("signatures of the candidate effects")
+    user = tuple(e for e in map(as_effect, add) if not e.builtin)
+    candidates, aside = effect_candidates(bus, dt_s, values, profiles, windows, basis, energy,
+                                          base_power, user, progress=lambda n: say(f"  {n}"))
+    candidates += parameter_candidates(model, params, profiles, windows, basis, energy,
+                                       base_power)
+    timings["candidates_s"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    nuisance = tuple(first_rung.calibration_result.free) if first_rung else ()
+    ranked, selected, verdict, why, significance = attribution.attribute(
+        missing, noise, candidates, usable, nuisance=nuisance)
+    by_name = {c.name: c for c in candidates}
+    weight = attribution.weights(noise)
+    in_cal = np.array([in_blocks(blocks[0], k, np.array([s]))[0] for k, s in
+                       zip(windows.profile_index, windows.start_step, strict=True)], bool)
+    estimate, verdict_w = {}, None
+    if verdict is not None:
+        best = by_name[verdict]
+        moving = [by_name[n].signature_w for n in nuisance if n in by_name]
+        estimate, _ = estimate_strength(best, dt_s, values, profiles, windows, basis, energy,
+                                        base_power, missing, weight, usable & in_cal,
+                                        np.column_stack(moving) if moving else None)
+        scale = next(a.scale for a in ranked if a.name == verdict)
+        verdict_w = scale * best.signature_w
+    ranking = [{"effect": a.name, "kind": a.kind, "explained_fraction": a.explained,
+                "parameters": (estimate if a.name == verdict else {}), "object": by_name[
+                    a.name].effect} for a in ranked if a.kind != "parameter"]
+    sentence = _sentence(verdict, ranking, estimate, by_name[verdict].bus.build(dt_s)
+                         if verdict else model, why)
+    for row in ranking:
+        row.pop("object")
+    parameters = []
+    for a in [a for a in ranked if a.kind == "parameter"][:10]:
+        i = model.param_index(a.name)
+        value = params[i] + a.scale * by_name[a.name].step
+        low, high = model.bounds[i]
+        parameters.append({"parameter": a.name, "explained_fraction": a.explained,
+                           "change_for_fit": a.scale * by_name[a.name].step,
+                           "value_for_fit": value, "within_bounds": bool(low <= value <= high)})
+    found = clues.correlations(clues.window_features(anchored, windows), missing, weight,
+                               usable)
+    modes, bins = _breakdowns(anchored, windows, missing, noise, usable)
+    worst = _worst(anchored, windows, missing, noise, usable)
+    timings["attribution_s"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    before_cal, before_held = fit_on_blocks(model, values, profiles, *blocks)
+    nrmse = {"before": {"calibration": before_cal["nrmse"], "held_out": before_held["nrmse"],
+                        "rmse_calibration_pct": before_cal["rmse_pct"],
+                        "rmse_held_out_pct": before_held["rmse_pct"]},
+             "blocks": f"{sum(map(np.sum, blocks[0].scored))} calibration and "
+                       f"{sum(map(np.sum, blocks[1].scored))} held-out blocks, the SoC "
+                       "restarting from the measured one at each"}
+    runs = [model.simulate(p, params, record_every=every) for p in profiles]
+    after_bus, after_values, ladder = None, {}, []
+    if add:
+        say("error ladder")
+        ladder = error_ladder(bus, profiles, add, dt_s, settings, polish_starts, first_rung,
+                              blocks, progress=lambda n: say(f"calibrating {n}"),
+                              estimates={verdict: estimate} if verdict else None)
+        after_bus, after_values = bus, ladder[-1].values
+        for item in add:
+            after_bus = after_bus.with_effect(item)
+        nrmse["after_is"] = f"the last rung of the error ladder ({ladder[-1].label})"
+    elif verdict is not None:
+        after_bus, after_values = by_name[verdict].bus, {**values, **estimate}
+        nrmse["after_is"] = f"+ {verdict} at its estimated strength (fitted on calibration blocks)"
+        if first_rung is not None:
+            # the calibrated parameters absorbed part of the effect: re-fit them with it
+            say(f"re-fitting with {verdict}")
+            local = replace(settings or ISOPTSettings(), iterations=0)
+            rung = calibrate_rung(after_bus, [by_name[verdict].effect], profiles, *blocks,
+                                  dt_s, local, polish_starts, f"+ {verdict}", start=after_values)
+            after_values = rung.values
+            nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
+    if first_rung is not None and not ladder:
+        ladder = [first_rung]
+    after_runs = []
+    if after_bus is not None:
+        after_model, after_params = model_with(after_bus, dt_s, after_values)
+        a_cal, a_held = fit_on_blocks(after_model, after_values, profiles, *blocks)
+        nrmse["after"] = {"calibration": a_cal["nrmse"], "held_out": a_held["nrmse"],
+                          "rmse_calibration_pct": a_cal["rmse_pct"],
+                          "rmse_held_out_pct": a_held["rmse_pct"]}
+        after_runs = [after_model.simulate(p, after_params, record_every=every)
+                      for p in profiles]
+    timings["fit_s"] = time.perf_counter() - t1
+    timings["total_s"] = time.perf_counter() - t0
+    return Diagnosis(
+        bus=bus.name, logs=[p.name for p in profiles], basis=basis, window_s=window_s,
+        verdict=verdict, sentence=sentence, why=why, significance=significance, ranking=ranking,
+        parameters=parameters, selected=selected, set_aside=aside, modes=modes, bins=bins,
+        worst_windows=worst, clues=found, data_issues=issues, excluded_windows=excluded,
+        nrmse=nrmse, calibration=calibration, ladder=ladder, timings=timings,
+        windows=windows, missing_w=missing, noise_w=noise, usable=usable, verdict_w=verdict_w,
+        runs=runs, after_runs=after_runs, anchored=anchored,
+        after_label="model " + " ".join(r.label for r in ladder[1:]) if add else
+        f"model + {verdict}")
+

@@ -1,0 +1,168 @@
+"""The error ladder: NRMSE before and after each added effect, on calibration and held-out data.
+
+The log is cut into blocks of an hour (a quarter of the log when it is shorter than four
+hours); even blocks calibrate, odd blocks are held out. The model runs through the whole log
+(a pack's temperature, a cabin's, carry on), but its SoC restarts from the measured one at
+each block, so a held-out block tests the model, not the error it carried in. Rung 0 is the
+model as given, calibrated; each further rung adds one effect and calibrates again, with the
+paper's parameters and the new effects' strength parameters free, starting from the rung
+before (and the diagnosis's estimate of the effect's strength, when it has one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ebus_env.calibration.calibrate import CalibrationResult, calibrate, evaluate_fit
+from ebus_env.calibration.problem import Blocks, CalibrationProblem, paper_params
+from ebus_env.config import BusConfig, resolve_effect
+from ebus_env.effects.base import Effect
+
+BLOCK_S = 3600.0
+MIN_BLOCKS = 4
+SCAN = 11
+
+
+def as_effect(item) -> Effect:
+    """An Effect, a registry name or ``file.py:Name``, as an Effect."""
+    return item if isinstance(item, Effect) else resolve_effect(str(item))
+
+
+def block_steps(profile, block_s: float = BLOCK_S) -> int:
+    """Steps per block of a profile: an hour, or a quarter of a shorter log."""
+    return max(2, int(round(min(block_s, profile.duration_s / MIN_BLOCKS) / profile.dt_s)))
+
+
+def split_blocks(profiles, block_s: float = BLOCK_S) -> tuple[Blocks, Blocks]:
+    """(calibration, held-out): the same blocks of each profile, even ones scored in the
+    first, odd ones in the second."""
+    starts, even = [], []
+    for p in profiles:
+        per = block_steps(p, block_s)
+        first = np.arange(0, max(p.n_steps - per // 2, 1), per)
+        starts.append(first)
+        even.append(np.arange(len(first)) % 2 == 0)
+    if sum(len(s) for s in starts) < 2:
+        raise ValueError("The log is too short to hold out blocks of it.")
+    return Blocks(tuple(starts), tuple(even)), Blocks(tuple(starts), tuple(~e for e in even))
+
+
+def in_blocks(blocks: Blocks, k: int, rows: np.ndarray) -> np.ndarray:
+    """Whether rows of profile ``k`` lie in the blocks ``blocks`` scores."""
+    which = np.searchsorted(blocks.starts[k], rows, side="right") - 1
+    return np.asarray(blocks.scored[k])[which]
+
+
+@dataclass
+class Rung:
+    """One step of the ladder."""
+
+    label: str  # "as given" or "+ effect"
+    effects: list[str]  # effects added so far
+    values: dict  # calibrated parameter values
+    calibration: dict  # NRMSE, RMSE [%-points], ... on calibration blocks
+    held_out: dict  # the same on held-out blocks
+    calibration_result: CalibrationResult | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        pick = ("nrmse", "rmse_pct", "max_abs_error_pct")
+        return {"label": self.label, "effects": self.effects,
+                "values": {k: float(v) for k, v in self.values.items()},
+                "calibration": {k: float(self.calibration[k]) for k in pick},
+                "held_out": {k: float(self.held_out[k]) for k in pick}}
+
+
+def fit_on_blocks(model, values: dict, profiles, cal: Blocks, held: Blocks) -> tuple[dict, dict]:
+    """Fit statistics of parameter ``values`` on calibration and held-out blocks."""
+    params = model.param_vector(model.carry_over(values))
+    return (evaluate_fit(model, profiles, params, cal)[0],
+            evaluate_fit(model, profiles, params, held)[0])
+
+
+def strength_scan(problem, model, effect: Effect, bases: list[dict]) -> list[dict]:
+    """For each point of ``bases``, the best of ``SCAN`` values of the effect's first strength
+    parameter across its range (one batched evaluation): where a global search should start,
+    since an effect added at its default strength may sit in another valley than the data."""
+    name = f"{effect.name}.{effect.strength_params[0]}"
+    if name not in problem.free:
+        return bases
+    i = problem.free.index(name)
+    out = []
+    for base in bases:
+        u = np.repeat(problem.points([base]), SCAN, axis=0)
+        u[:, i] = np.linspace(0.0, 1.0, SCAN)
+        best = u[int(np.argmin(problem.cost(u)))]
+        out.append(problem.named(best))
+    return out
+
+
+def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, held: Blocks,
+                   dt_s: float,
+                   settings=None, polish_starts: int | None = None, label: str = "as given",
+                   free: list[str] | None = None, start: dict | None = None) -> Rung:
+    """Calibrate ``bus`` (with ``added`` effects already in it) on the calibration blocks of
+    ``profiles``.
+    The search starts from ``start`` (values by name) and from the bus's configured values,
+    each with the last added effect's strength scanned (:func:`strength_scan`)."""
+    model = bus.build(dt_s)
+    if free is None:
+        free = paper_params(model)
+        for eff in added:
+            free += [f"{eff.name}.{p}" for p in eff.strength_params if
+                     f"{eff.name}.{p}" not in free]
+    starts = [model.carry_over(start or {}), {}]  # the rung before, the configured values
+    if added and added[-1].strength_params:
+        problem = CalibrationProblem(model, profiles, free, blocks=cal)
+        starts = strength_scan(problem, model, added[-1], starts)
+    result = calibrate(model, profiles, free=free, settings=settings, validate=profiles,
+                       polish_starts=polish_starts, start=starts, blocks=cal,
+                       validate_blocks=held)
+    return Rung(label, [e.name for e in added], dict(result.values), result.fit,
+                result.validation, result)
+
+
+def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None,
+                 polish_starts: int | None = None, first: Rung | None = None,
+                 blocks: tuple[Blocks, Blocks] | None = None, progress=None,
+                 estimates: dict | None = None) -> list[Rung]:
+    """Rung 0 (``first`` when already calibrated) and one rung per effect in ``add`` (names,
+    ``file.py:Name`` or Effect objects), each added to the ones before and calibrated;
+    ``estimates`` maps an effect's name to starting values of its parameters."""
+    cal, held = blocks or split_blocks(profiles)
+    rungs = [first] if first is not None else []
+    if not rungs:
+        if progress:
+            progress("as given")
+        rungs.append(calibrate_rung(bus, [], profiles, cal, held, dt_s, settings,
+                                    polish_starts))
+    added: list[Effect] = []
+    for item in add:
+        eff = as_effect(item)
+        bus = bus.with_effect(eff)
+        added.append(eff)
+        if progress:
+            progress(f"+ {eff.name}")
+        start = {**rungs[-1].values, **(estimates or {}).get(eff.name, {})}
+        rungs.append(calibrate_rung(bus, list(added), profiles, cal, held, dt_s, settings,
+                                    polish_starts, label=f"+ {eff.name}", start=start))
+    return rungs
+
+
+def improvement(rungs: list[Rung]) -> float:
+    """Relative fall of held-out NRMSE from the first rung to the last."""
+    before, after = rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"]
+    return float(1.0 - after / before) if before > 0 else float("nan")
+
+
+def ladder_table(rungs: list[Rung]) -> list[dict]:
+    """Rows for the console and HTML tables."""
+    rows = []
+    for r in rungs:
+        rows.append({"model": r.label, "NRMSE cal": r.calibration["nrmse"],
+                     "NRMSE held-out": r.held_out["nrmse"],
+                     "RMSE cal [%]": r.calibration["rmse_pct"],
+                     "RMSE held-out [%]": r.held_out["rmse_pct"]})
+    return rows
+
