@@ -1,4 +1,5 @@
-"""Command line: ``ebus simulate``, ``ebus cycles``, ``ebus effects``, ``ebus demo``."""
+"""Command line: ``ebus simulate``, ``calibrate``, ``diagnose``, ``cycles``, ``effects``,
+``demo``."""
 
 from __future__ import annotations
 
@@ -51,8 +52,9 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def _load_logs(paths, model, params, columns, gaps, fill, check_units, console):
-    """Profiles of measured logs, with the loader's report printed."""
+def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, notes=None):
+    """Profiles of measured logs, with the loader's report printed (and its changes appended
+    to ``notes``)."""
     from ebus_env.io.measured import load_log
 
     vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
@@ -62,6 +64,8 @@ def _load_logs(paths, model, params, columns, gaps, fill, check_units, console):
         log = load_log(path, model.dt_s, columns=columns, gaps=gaps, fill=fill,
                        check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
         profiles += log.profiles
+        if notes is not None:
+            notes += log.report.changes
         for line in log.report.changes:
             console.print(f"[dim]loader ({Path(path).name}):[/] {line}", highlight=False)
         for line in log.report.warnings + log.report.ignored:
@@ -340,6 +344,74 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
                       "evaluations": result.history.evaluations,
                       "best_cost": result.history.best_cost}).to_csv(history, index=False)
         console.print(f"history -> {history}")
+
+
+@app.command()
+def diagnose(
+    logs: Annotated[list[Path], typer.Argument(help="Measured log(s) with SoC (CSV/Parquet)")],
+    bus: BusOpt = "12m",
+    with_: WithOpt = None,
+    without: WithoutOpt = None,
+    overlay: OverlayOpt = None,
+    calibrate: Annotated[bool, typer.Option(
+        help="Calibrate the paper's parameters on the calibration blocks first")] = False,
+    add: Annotated[list[str] | None, typer.Option(
+        help="Error ladder: add this effect and re-calibrate (repeatable, in order; "
+             "my_effects.py:Name for your own)")] = None,
+    html: Annotated[Path | None, typer.Option(help="Write the report as one HTML file")]
+    = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON")]
+    = None,
+    window_s: Annotated[float | None, typer.Option(
+        help="Window length [s] (default: 300 from SoC, 60 from current x voltage)")] = None,
+    config: Annotated[str | None, typer.Option(
+        help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml)")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of iSOPT")] = 0,
+    columns: Annotated[str | None, typer.Option(help="Column map preset, e.g. bmw_i3_tum")]
+    = None,
+    gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
+    fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
+    no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+):
+    """Where the model fails against measurements, which effect is missing, and the error
+    before and after adding it."""
+    _run(lambda: _diagnose(logs, bus, with_, without, overlay, calibrate, add, html,
+                           json_path, window_s, config, seed, columns, gaps, fill,
+                           not no_unit_check))
+
+
+def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, json_path,
+              window_s, config, seed, columns, gaps, fill, check_units):
+    from dataclasses import replace
+
+    from ebus_env.calibration.settings import load_calibration_config
+    from ebus_env.config import load_bus
+    from ebus_env.diagnostics import diagnose as run_diagnosis
+    from ebus_env.diagnostics.report import console_tables
+
+    console = _console()
+    cfg = load_calibration_config(config)
+    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    model = bus.build()
+    notes: list[str] = []
+    profiles = _load_logs(logs, model, model.params, columns, gaps, fill, check_units, console,
+                          notes)
+    with console.status("diagnosing") as status:
+        result = run_diagnosis(bus, profiles, calibrate=calibrate, add=_split(add),
+                               window_s=window_s, settings=replace(cfg.isopt, seed=seed),
+                               polish_starts=cfg.polish_starts, loader_notes=notes,
+                               progress=lambda text: status.update(text))
+    for table in console_tables(result):
+        console.print(table)
+    style = "bold green" if result.verdict else "bold"
+    console.print(f"[{style}]{result.sentence}[/]", highlight=False)
+    console.print(f"[dim]{result.timings['total_s']:.1f} s[/]", highlight=False)
+    if html:
+        result.write_html(html)
+        console.print(f"report -> {html}")
+    if json_path:
+        result.write_json(json_path)
+        console.print(f"results -> {json_path}")
 
 
 @app.command()

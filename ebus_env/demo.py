@@ -1,8 +1,9 @@
 """The main job on bundled data: ``ebus demo``.
 
 Simulates the 12 m and 18 m buses through a SORT 2 service day, replays measured BMW i3 trips
-against their logged SoC, calibrates the car on trip B16 and validates it on B03, and writes one
-self-contained HTML report with the figures, plots and a JSON of every number.
+against their logged SoC, calibrates the car on trip B16 and validates it on B03, diagnoses the
+car without its cabin heating and a bus day with a hidden effect (adding it, the error falls),
+and writes a self-contained HTML report with the figures, plots and a JSON of every number.
 """
 
 from __future__ import annotations
@@ -72,6 +73,34 @@ def _calibration_section(model, numbers: dict, say) -> tuple[str, str, str]:
             base64.b64encode(buf.getvalue()).decode())
 
 
+def _diagnosis_sections(out: Path, numbers: dict, say) -> list[tuple[str, str, str]]:
+    """Diagnose the BMW i3 without its cabin heating on B16 + B03, and a service day with a
+    hidden effect, adding it (the error ladder); each writes its own HTML and JSON report."""
+    from ebus_env.diagnostics import diagnose, hidden, plots
+
+    cases = [("bmw_i3_without_heating", "BMW i3 trips B16 + B03, model without cabin heating",
+              load_bus("bmw_i3", without=["cabin_hvac"]),
+              [p for t in ("B16", "B03") for p in load_log(
+                  BMW_DIR / f"Trip{t}_1hz.csv", columns="bmw_i3_tum").profiles], ())]
+    case = hidden.case("cabin_heating")
+    cases.append(("hidden_cabin_heating", "a 12 m bus on a cold day, its cabin heating hidden; "
+                  "then added and re-calibrated", hidden.baseline_bus(case),
+                  load_log(hidden.OUT_DIR / "cabin_heating.csv.gz").profiles, [case.effect]))
+    sections = []
+    for name, title, bus, profiles, add in cases:
+        d = diagnose(bus, profiles, add=add)
+        d.write_html(out / f"{name}.html")
+        numbers[f"diagnosis_{name}"] = d.to_json()
+        say(f"Diagnosis, {title}: {d.sentence}")
+        rows = "".join(f"<tr><td>{html.escape(r.label)}</td><td>{r.calibration['nrmse']:.4f}"
+                       f"</td><td>{r.held_out['nrmse']:.4f}</td></tr>" for r in d.ladder)
+        table = (f"<p>{html.escape(d.sentence)} <a href='{name}.html'>Full report</a>.</p>"
+                 + (f"<table><tr><th>model</th><th>NRMSE calibration blocks</th><th>NRMSE "
+                    f"held-out blocks</th></tr>{rows}</table>" if rows else ""))
+        sections.append((f"Diagnosis: {title}", table, _png(plots.missing_power(d))))
+    return sections
+
+
 def run_demo(out: Path, console=None) -> Path:
     """Run the demo and write ``out/index.html`` and ``out/summary.json``."""
     from ebus_env.plotting import plot_trace
@@ -103,6 +132,7 @@ def run_demo(out: Path, console=None) -> Path:
         sections.append((f"BMW i3 trip {trip}: model vs measured SoC (uncalibrated defaults)",
                          _table(s), _png(plot_trace(run.results[0]))))
     sections.append(_calibration_section(model, numbers, say))
+    sections += _diagnosis_sections(out, numbers, say)
     body = "".join(f"<h2>{html.escape(title)}</h2><div class='t'>{table}</div>"
                    f"<img src='data:image/png;base64,{png}'/>" for title, table, png in sections)
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>ebus-env demo</title>"

@@ -10,7 +10,7 @@ from ebus_env.demo import run_demo
 def test_demo_writes_a_self_contained_report(tmp_path):
     page = run_demo(tmp_path)
     html = page.read_text()
-    assert html.count("<img src='data:image/png;base64,") == 6
+    assert html.count("<img src='data:image/png;base64,") == 8
     assert "12m bus" in html and "BMW i3 trip B16" in html
     numbers = json.loads((tmp_path / "summary.json").read_text())
     assert 0.8 < numbers["12m_sort2_day"]["kwh_per_km"] < 1.6
@@ -19,3 +19,9 @@ def test_demo_writes_a_self_contained_report(tmp_path):
     calibrated = numbers["bmw_i3_calibration"]
     assert calibrated["nrmse"] < 0.5 * numbers["bmw_i3_B16"]["soc_nrmse"]
     assert "validation" in calibrated and "calibrated with iSOPT on trip B16" in html
+    # diagnosis: the car without heating, and a day with the heating hidden, then added
+    assert numbers["diagnosis_bmw_i3_without_heating"]["verdict"] == "cabin_hvac"
+    ladder = numbers["diagnosis_hidden_cabin_heating"]["ladder"]
+    assert ladder[-1]["held_out"]["nrmse"] < 0.5 * ladder[0]["held_out"]["nrmse"]
+    for name in ("bmw_i3_without_heating", "hidden_cabin_heating"):
+        assert (tmp_path / f"{name}.html").stat().st_size > 10_000
