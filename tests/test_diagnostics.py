@@ -1,0 +1,293 @@
+"""Diagnostics: the pieces on known inputs, the hidden-effect days (every hidden effect named and
+its error removed, the control day left alone), real BMW i3 trips, a user's own effect, the
+report (JSON, HTML rendered in headless Chromium) and the command line."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ebus_env.calibration import calibrate
+from ebus_env.config import load_bus
+from ebus_env.diagnostics import attribution, diagnose, hidden
+from ebus_env.diagnostics.candidates import Candidate
+from ebus_env.diagnostics.ladder import improvement, split_blocks
+from ebus_env.diagnostics.residual import _slopes, correlation_time
+from ebus_env.io.measured import load_log
+
+ROOT = Path(__file__).resolve().parent.parent
+BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
+
+
+def hidden_log(name: str):
+    return load_log(hidden.OUT_DIR / f"{name}.csv.gz").profiles
+
+
+def bmw(*trips):
+    return [p for t in trips for p in load_log(BMW / f"Trip{t}_1hz.csv",
+                                               columns="bmw_i3_tum").profiles]
+
+
+def window_mean(d, name):
+    return np.array([np.mean(d.runs[k].profile.measured[name][a:b]) for k, a, b in zip(
+        d.windows.profile_index, d.windows.start_step, d.windows.stop_step, strict=True)])
+
+
+# -- pieces ----------------------------------------------------------------------------------
+def test_slope_of_a_quantised_ramp_and_its_error():
+    t = np.arange(600.0)
+    soc = np.round((0.9 - 2e-5 * t) / 0.001) * 0.001  # 0.1 % steps
+    slope, se = _slopes(t, soc)
+    assert slope[0] == pytest.approx(-2e-5, rel=0.02)
+    assert 0 < se[0] < 1e-6
+
+
+def test_correlation_time_of_white_and_correlated_noise():
+    rng = np.random.default_rng(0)
+    white = rng.normal(size=20000)
+    assert correlation_time(white) == pytest.approx(1.0, abs=0.3)
+    ar = np.zeros(20000)
+    for i in range(1, len(ar)):
+        ar[i] = 0.9 * ar[i - 1] + white[i]
+    assert correlation_time(ar) == pytest.approx((1 + 0.9) / (1 - 0.9), rel=0.25)
+
+
+def _candidate(name, kind, signature):
+    return Candidate(name, kind, np.atleast_2d(signature))
+
+
+def test_attribution_names_the_signature_in_the_data_and_ignores_an_outlier():
+    rng = np.random.default_rng(1)
+    n = 80
+    heat = 3000 + 2000 * np.sin(np.arange(n) / 9)
+    other = 1000 * rng.random(n)
+    y = 0.8 * heat + rng.normal(0, 100, n)
+    y[5] += 20000  # a window the model cannot know about
+    noise = np.full(n, 100.0)
+    cands = [_candidate("heat", "missing effect", heat), _candidate("other", "missing effect",
+                                                                     other)]
+    ranking, selected, verdict, why, significance = attribution.attribute(
+        y, noise, cands, np.ones(n, bool))
+    assert verdict == "heat" and ranking[0].name == "heat"
+    assert ranking[0].explained > 0.9 and ranking[0].scale == pytest.approx(0.8, rel=0.05)
+    assert selected[0] == "heat" and significance > 100
+
+
+def test_attribution_supports_nothing_in_noise_or_when_a_parameter_explains_it():
+    rng = np.random.default_rng(2)
+    n = 80
+    s = 1000 + 500 * np.cos(np.arange(n) / 7)
+    noise = np.full(n, 200.0)
+    cands = [_candidate("effect", "missing effect", s)]
+    y = rng.normal(0, 200, n)
+    *_, verdict, why, significance = attribution.attribute(y, noise, cands, np.ones(n, bool))
+    assert verdict is None and "noise" in why and significance < 3
+    # the same shape as a parameter of the model: a mis-set parameter is the simpler answer
+    cands.append(_candidate("aux.power_w", "parameter", s))
+    *_, verdict, why, _ = attribution.attribute(2 * s + rng.normal(0, 50, n), noise, cands,
+                                               np.ones(n, bool))
+    assert verdict is None and "aux.power_w" in why
+
+
+def test_held_out_blocks_alternate_and_keep_the_pack_temperature_running():
+    """Scored on blocks, the true model of the cold-battery day fits to the log's noise: its
+    pack temperature runs on through the blocks instead of restarting at each."""
+    case = hidden.case("cold_battery")
+    profiles = hidden_log(case.name)
+    cal, held = split_blocks(profiles)
+    assert len(cal.starts[0]) == 8 and list(cal.scored[0][:4]) == [True, False, True, False]
+    assert not np.any(cal.scored[0] & held.scored[0])
+    model = hidden.true_bus(case).build()
+    from ebus_env.calibration.calibrate import evaluate_fit
+
+    fit, _ = evaluate_fit(model, profiles, model.params, held)
+    assert fit["rmse_pct"] < 0.06  # 0.1 % quantisation and 0.02 % noise
+
+
+def test_data_problems_are_flagged_and_their_windows_left_out(tmp_path):
+    """The log of a day loses its charging flag for one layover: the SoC rises while the bus
+    stands, by the log, unplugged."""
+    frame = pd.read_csv(hidden.OUT_DIR / "control.csv.gz")
+    plugged = np.flatnonzero(frame.charging.to_numpy() == 1)
+    first = plugged[: np.argmax(np.diff(plugged) > 1)]  # the first layover
+    frame.loc[first, "charging"] = 0
+    frame.to_csv(tmp_path / "flag.csv", index=False)
+    d = diagnose(load_bus("12m"), load_log(tmp_path / "flag.csv").profiles)
+    issue = next(i for i in d.data_issues if i["issue"] == "SoC rises while standing unplugged")
+    hour = first[len(first) // 2] / 3600
+    assert issue["window_start_h"] <= hour <= issue["window_end_h"]
+    assert d.excluded_windows >= 1
+
+
+# -- hidden-effect days ----------------------------------------------------------------------
+LIBRARY_CASES = [c.name for c in hidden.CASES if c.effect and ".py:" not in c.effect]
+
+
+def test_the_shipped_hidden_days_are_what_the_generator_makes():
+    case = hidden.case("control")
+    made = hidden.generate(case, hidden.SEED + [c.name for c in hidden.CASES].index("control"))
+    shipped = pd.read_csv(hidden.OUT_DIR / "control.csv.gz")
+    assert made.to_csv(index=False, float_format=hidden.FLOAT_FORMAT) == \
+        shipped.to_csv(index=False, float_format=hidden.FLOAT_FORMAT)
+    manifest = json.loads((hidden.OUT_DIR / "cases.json").read_text())
+    assert set(manifest) == {c.name for c in hidden.CASES}
+
+
+@pytest.mark.parametrize("name", LIBRARY_CASES)
+def test_hidden_effect_ranks_first_with_its_strength(name):
+    case = hidden.case(name)
+    d = diagnose(hidden.baseline_bus(case), hidden_log(name))
+    assert d.verdict == case.effect and d.ranking[0]["effect"] == case.effect
+    assert d.ranking[0]["explained_fraction"] > 0.9
+    model = hidden.true_bus(case).build()
+    for param, value in d.ranking[0]["parameters"].items():  # within 10 % of its range
+        low, high = model.bounds[model.param_index(param)]
+        assert abs(value - case.truth[param]) < 0.1 * (high - low), (param, value)
+    assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", LIBRARY_CASES)
+def test_adding_the_hidden_effect_and_recalibrating_halves_held_out_error(name):
+    case = hidden.case(name)
+    d = diagnose(hidden.baseline_bus(case), hidden_log(name), add=[case.effect])
+    assert d.verdict == case.effect  # named on the calibrated model's residual too
+    assert [r.label for r in d.ladder] == ["as given", f"+ {case.effect}"]
+    assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
+    assert d.nrmse["after"]["held_out"] == d.ladder[-1].held_out["nrmse"]
+
+
+def test_control_day_supports_no_missing_effect():
+    d = diagnose(hidden.baseline_bus(hidden.case("control")), hidden_log("control"))
+    assert d.verdict is None and "noise" in d.why
+    assert d.nrmse["before"]["held_out"] < 0.01 and "after" not in d.nrmse
+
+
+# -- a user's own effect ---------------------------------------------------------------------
+@pytest.mark.slow
+def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():
+    """The README's worked example: examples/my_effects.py:door_compressor."""
+    case = hidden.case("door_compressor")
+    profiles = hidden_log(case.name)
+    first = diagnose(load_bus("12m"), profiles)
+    assert first.verdict is None  # no effect of the library explains it
+    assert {"door_share", "idle_share"} & {c["feature"] for c in first.clues[:3]}
+    d = diagnose(load_bus("12m"), profiles, add=[str(ROOT / case.effect)])
+    assert d.verdict == "door_compressor"
+    assert improvement(d.ladder) >= 0.5
+    assert d.ladder[-1].values["door_compressor.power_w"] == pytest.approx(5000.0, rel=0.15)
+    model = load_bus("12m").with_effect(hidden.hidden_effect(case)).build()
+    assert hasattr(model.kernel("run"), "signatures")  # compiled by numba like the built-ins
+
+
+def test_readme_shows_the_users_effect_file_verbatim():
+    readme = (ROOT / "README.md").read_text()
+    assert (ROOT / "examples" / "my_effects.py").read_text().strip() in readme
+
+
+# -- real data -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def bmw_no_heating():
+    return load_bus("bmw_i3", without=["cabin_hvac"])
+
+
+def test_bmw_winter_trips_without_heating_name_cabin_heating(bmw_no_heating):
+    d = diagnose(bmw_no_heating, bmw("B16", "B03"))
+    assert d.basis == "battery current x voltage"
+    assert d.verdict == "cabin_hvac"
+    heater = window_mean(d, "heating_power_can_kw")
+    ok = d.usable
+    assert np.corrcoef(d.missing_w[ok], heater[ok])[0, 1] > 0.6
+    assert np.corrcoef(d.verdict_w[ok], heater[ok])[0, 1] > 0.8
+    assert d.clues[0]["feature"] == "log:heating_power_can_kw"
+    assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
+
+
+def test_bmw_trip_b02_capacity_is_a_data_problem():
+    d = diagnose(load_bus("bmw_i3"), bmw("B02"))
+    capacity = next(i for i in d.data_issues if "capacity" in i["issue"])
+    assert capacity["ah_per_pct"] == pytest.approx(0.80, abs=0.03)
+    assert capacity["pack_ah_per_pct"] == pytest.approx(0.60, abs=0.01)
+
+
+# -- report and command line -----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def cabin_report(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("report")
+    d = diagnose(hidden.baseline_bus(hidden.case("cabin_heating")), hidden_log("cabin_heating"))
+    d.write_json(folder / "r.json")
+    d.write_html(folder / "r.html")
+    return d, folder
+
+
+def test_json_report_holds_what_the_issue_asks(cabin_report):
+    d, folder = cabin_report
+    data = json.loads((folder / "r.json").read_text())
+    assert data["verdict"] == "cabin_hvac"
+    assert data["ranking"][0] == {"effect": "cabin_hvac", "kind": "missing effect",
+                                  "explained_fraction": pytest.approx(
+                                      d.ranking[0]["explained_fraction"]),
+                                  "parameters": {"cabin_hvac.ua_w_per_k": pytest.approx(
+                                      450.0, rel=0.05)}}
+    assert data["nrmse"]["before"]["held_out"] > 10 * data["nrmse"]["after"]["held_out"]
+    assert {m["mode"] for m in data["modes"]} >= {"accelerating", "idle", "CC charging"}
+    assert data["data_issues"] == []
+    idle = next(m for m in data["modes"] if m["mode"] == "idle")
+    assert idle["missing_kw"] > 10  # the heater runs while the bus stands with doors open
+
+
+def test_html_report_renders_in_headless_chromium(cabin_report):
+    _, folder = cabin_report
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        if os.environ.get("EBUS_REQUIRE_CHROMIUM"):
+            pytest.fail("chromium is required here (EBUS_REQUIRE_CHROMIUM) but not installed")
+        pytest.skip("chromium not installed")
+    page = (folder / "r.html").as_uri()
+    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=5000"]
+    dom = subprocess.run([browser, *flags, "--dump-dom", page], capture_output=True, text=True,
+                         timeout=120).stdout
+    assert 'data-plots-rendered="5/5"' in dom
+    assert dom.count('data-rendered="yes"') == 5
+    shot = folder / "r.png"
+    subprocess.run([browser, *flags, "--window-size=1200,2000", f"--screenshot={shot}", page],
+                   capture_output=True, timeout=120)
+    assert shot.stat().st_size > 50_000  # a page of plots, not a blank one
+
+
+def test_command_line_diagnose(tmp_path):
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    result = CliRunner().invoke(app, [
+        "diagnose", str(hidden.OUT_DIR / "evening_auxiliaries.csv.gz"), "--bus", "12m",
+        "--json", str(tmp_path / "r.json"), "--html", str(tmp_path / "r.html")])
+    assert result.exit_code == 0, result.output
+    assert "aux_schedule" in result.output and "explains" in result.output
+    assert json.loads((tmp_path / "r.json").read_text())["verdict"] == "aux_schedule"
+    bad = CliRunner().invoke(app, ["diagnose", str(hidden.OUT_DIR / "control.csv.gz"),
+                                   "--add", "cabin_hvacc"])
+    assert bad.exit_code == 2 and "cabin_hvac" in bad.output  # did you mean
+
+
+def test_calibration_on_blocks_scores_only_its_blocks():
+    """Calibrating on the even blocks never looks at the odd ones: the fit there is honest."""
+    case = hidden.case("evening_auxiliaries")
+    profiles = hidden_log(case.name)
+    cal, held = split_blocks(profiles)
+    model = hidden.true_bus(case).build()
+    from ebus_env.calibration import ISOPTSettings
+
+    result = calibrate(model, profiles, ["aux_schedule.scale"], settings=ISOPTSettings(
+        iterations=5), validate=profiles, blocks=cal, validate_blocks=held, polish_starts=1)
+    assert result.values["aux_schedule.scale"] == pytest.approx(5.0, abs=0.3)
+    assert result.fit["samples"] + result.validation["samples"] == pytest.approx(
+        10 * 3600, abs=20)
