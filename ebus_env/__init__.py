@@ -53,3 +53,16 @@ def __getattr__(name: str):
     if name in _EXPORTS:
         return getattr(importlib.import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'ebus_env' has no attribute '{name}'")
+
+
+def _register_envs() -> None:
+    """``gymnasium.make("EBus-v0")`` after ``import ebus_env`` (when Gymnasium is installed:
+    the ``rl`` extra)."""
+    try:
+        from ebus_env.envs import register_envs
+    except ImportError:  # pragma: no cover - gymnasium not installed
+        return
+    register_envs()
+
+
+_register_envs()

@@ -1,0 +1,18 @@
+"""Gymnasium environments: ``EBus-v0`` (one bus, one service day).
+
+Registered when :mod:`ebus_env` is imported (``import ebus_env; gymnasium.make("EBus-v0")``),
+or without an import as ``gymnasium.make("ebus_env:EBus-v0")``.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+MAX_DECISIONS = 2000  # TimeLimit: a 24 h day of 60 s decisions fits, with margin
+
+
+def register_envs() -> None:
+    """Register the environments with Gymnasium (idempotent)."""
+    if "EBus-v0" not in gym.registry:
+        gym.register("EBus-v0", entry_point="ebus_env.envs.ebus:EBusEnv",
+                     max_episode_steps=MAX_DECISIONS)

@@ -1,0 +1,133 @@
+"""The reference a bus follows in the environments: a course driven under ECO-driving caps.
+
+A virtual reference vehicle runs along the course (:mod:`ebus_env.envs.course`) and writes, row
+by row at the model's time step, what the model's driver tracks (reference speed and its
+acceleration) and what the bus meets (grade, stops with open doors, layovers on a charger)::
+
+    v_target = min(v_course(s + max(v, 1 m/s) x 1 s), v_cap, sqrt(2 b (s_stop - s)))
+    a_wanted = clip((v_target - v) / 1 s, -1.5 b, a_cap)
+    a       <- a + clip(a_wanted - a, -3 j dt, j dt)      (jerk-limited ramp, paper App. B.1)
+
+so a cap lowers the speed or the acceleration but never moves a stop: the bus stops exactly at
+each stop and a lap is as long as before; it only takes longer. At the terminal the bus lays
+over on a charger until the timetable's departure (at least ``layover_min_s``): the slack in
+the layover absorbs delay before the next lap starts late.
+
+One compiled function advances the reference by ``n`` rows from its state vector
+(``STATE_NAMES``); the environment keeps one state per bus.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+STATE_NAMES = ("s_m", "v_mps", "a_mps2", "mode", "timer_s", "stop", "lap", "time_s",
+               "departure_delay_s")
+S, V, A, MODE, TIMER, STOP, LAP, TIME, DEP_DELAY = range(len(STATE_NAMES))
+DRIVE, DWELL, LAYOVER = 0.0, 1.0, 2.0
+ROW_NAMES = ("speed_ref_mps", "accel_ref_mps2", "grade_frac", "charger_connected",
+             "charger_rating_w", "door_open")
+LOOKAHEAD_S = 1.0
+TAU_S = 1.0
+ARRIVED_M = 0.3  # a stop this close, nearly standing: arrived (snapped onto it)
+
+
+def new_state() -> np.ndarray:
+    """At the departure of the first lap."""
+    return np.zeros(len(STATE_NAMES))
+
+
+@numba.njit(cache=True, nogil=True)
+def _advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
+                 lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, out,
+                 rows_at):
+    last = len(speed) - 1
+    final_stop = len(stop_m) - 1
+    for row in range(n):
+        mode = state[3]
+        v = state[1]
+        connected = 0.0
+        door = 0.0
+        v_next = 0.0
+        if mode == 0.0:  # driving
+            s = state[0]
+            a = state[2]
+            k = int(state[5])
+            remaining = stop_m[k] - s
+            i = min(int((s + max(v, 1.0) * LOOKAHEAD_S) / step_m), last)
+            target = min(speed[i], v_cap)
+            target = min(target, math.sqrt(2.0 * decel * max(remaining - ARRIVED_M, 0.0)))
+            wanted = min(max((target - v) * (1.0 / TAU_S), -1.5 * decel), a_cap)
+            a = a + min(max(wanted - a, -3.0 * jerk * dt), jerk * dt)
+            v_next = v + a * dt
+            if v_next < 0.0:
+                v_next = 0.0
+                a = -v / dt
+            s = s + 0.5 * (v + v_next) * dt
+            if s >= stop_m[k] or (stop_m[k] - s < ARRIVED_M and v_next < 0.1):
+                s = stop_m[k]
+                v_next = 0.0
+                a = 0.0
+                state[3] = 1.0
+                state[4] = dwell_s[k]
+            state[0] = s
+            state[2] = a
+        elif mode == 1.0:  # standing at a stop, doors open
+            door = 1.0
+            state[4] -= dt
+            if state[4] <= 0.0:
+                k = int(state[5])
+                if k == final_stop:  # the terminal: lay over until the timetable's departure
+                    departure = (state[6] + 1.0) * lap_period_s
+                    state[3] = 2.0
+                    state[4] = max(layover_min_s, departure - (state[7] + dt))
+                else:
+                    state[5] = k + 1.0
+                    state[3] = 0.0
+        else:  # layover at the terminal
+            connected = charger_connected
+            state[4] -= dt
+            if state[4] <= 0.0:
+                state[6] += 1.0
+                state[0] = 0.0
+                state[5] = 0.0
+                state[3] = 0.0
+                state[8] = state[7] + dt - state[6] * lap_period_s
+        j = min(int(state[0] / step_m), last)
+        values = (v, (v_next - v) * (1.0 / dt), grade[j], connected,
+                  charger_w if connected > 0.0 else math.nan, door)
+        for c in range(6):
+            if rows_at[c] >= 0:
+                out[rows_at[c], row] = values[c]
+        state[1] = v_next
+        state[7] += dt
+
+
+@numba.njit(cache=True, nogil=True)
+def advance(states, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
+            lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, inputs, rows_at):
+    """Advance the reference of each bus ``b`` by ``n`` rows of ``dt`` from ``states[b]``
+    (updated in place), writing its rows into ``inputs[b, rows_at[c], :n]`` for each
+    channel ``c`` of ``ROW_NAMES`` (-1: the model does not read it). Per bus: ``v_cap``,
+    ``a_cap``, ``charger_w``; ``lap_period_s``: timetable time from one departure to the
+    next (lap plus scheduled layover)."""
+    for b in range(states.shape[0]):
+        _advance_one(states[b], speed, grade, step_m, stop_m, dwell_s, v_cap[b], a_cap[b],
+                     jerk, decel, lap_period_s, layover_min_s, charger_connected, charger_w[b],
+                     dt, n, inputs[b], rows_at)
+
+
+def schedule_delay_s(state: np.ndarray, baseline_s: np.ndarray, dwell_s: np.ndarray,
+                     step_m: float, lap_period_s: float) -> float:
+    """How late the bus is against the timetable [s] (negative: early). On a layover: how
+    late it will leave."""
+    if state[MODE] == LAYOVER:
+        return max(state[TIME] + state[TIMER] - (state[LAP] + 1) * lap_period_s, 0.0)
+    i = min(int(state[S] / step_m), len(baseline_s) - 1)
+    due = state[LAP] * lap_period_s + baseline_s[i]
+    if state[MODE] == DWELL:
+        due += dwell_s[int(state[STOP])] - state[TIMER]
+    return float(state[TIME] - due)

@@ -1,0 +1,44 @@
+"""Rendering of the environments: the day so far (speed, SoC, power, cabin temperature)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def draw(env, mode: str):
+    """``rgb_array``: an (H, W, 3) uint8 image of the day so far; ``human``: the same in a
+    window (matplotlib)."""
+    import matplotlib
+
+    if mode == "rgb_array":
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h = np.array(env._history) if env._history else np.zeros((0, 7))
+    fig, axes = plt.subplots(4, 1, figsize=(6, 6), sharex=True, constrained_layout=True)
+    t = h[:, 0]
+    axes[0].plot(t, h[:, 1], color="C0")
+    axes[0].set_ylabel("speed\n[km/h]")
+    axes[1].plot(t, 100 * h[:, 2], color="C2")
+    axes[1].set_ylabel("SoC [%]")
+    axes[2].plot(t, h[:, 3], color="C3", label="battery")
+    axes[2].plot(t, h[:, 4], color="C1", label="grid")
+    axes[2].set_ylabel("power [kW]")
+    axes[2].legend(loc="upper right", fontsize=7)
+    axes[3].plot(t, h[:, 5], color="C4", label="cabin")
+    axes[3].plot(t, h[:, 6], color="0.5", ls="--", label="setpoint")
+    axes[3].set_ylabel("cabin\n[degC]")
+    axes[3].legend(loc="upper right", fontsize=7)
+    axes[3].set_xlabel("hours into service")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].set_title(f"{env.spec.id if env.spec else 'EBus'}: {env.course.name}, "
+                      f"decision {env._decision}")
+    if mode == "human":
+        plt.show(block=False)
+        plt.pause(0.001)
+        return None
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+    plt.close(fig)
+    return image

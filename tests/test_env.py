@@ -1,0 +1,184 @@
+"""EBus-v0: Gymnasium conformance, reproducibility, clear errors, and the physics of its ECO
+actions (speed cap, cabin setpoint, pulsed charging)."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ebus_env  # noqa: F401  (registers the environments)
+from ebus_env.envs import reference
+from ebus_env.envs.course import course_from_cycle
+from ebus_env.envs.ebus import ACTIONS
+from ebus_env.profile import Profile
+
+
+def action(**values) -> np.ndarray:
+    """An action from physical values (others at +1: no cap, 28 degC, full power, no pulses)."""
+    a = np.ones(len(ACTIONS), np.float32)
+    for i, r in enumerate(ACTIONS):
+        if r.name in values:
+            a[i] = 2.0 * (values[r.name] - r.low) / (r.high - r.low) - 1.0
+    return a
+
+
+def rollout(env, actions, seed=0):
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        out.append(np.concatenate([obs, [reward]]))
+        if terminated or truncated:
+            break
+    return out
+
+
+def test_gymnasium_and_sb3_checkers_pass_without_warnings():
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make("EBus-v0", service_h=0.3).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env)
+        sb3_check_env(env, warn=True)
+
+
+def test_same_seed_same_rollout_and_reset_is_reproducible():
+    space = gym.spaces.Box(-1, 1, (len(ACTIONS),), np.float32, seed=3)
+    actions = [space.sample() for _ in range(40)]
+    a = gym.make("EBus-v0", service_h=0.5)
+    b = gym.make("EBus-v0", service_h=0.5)
+    first = rollout(a, actions, seed=7)
+    assert all(np.array_equal(x, y) for x, y in zip(first, rollout(b, actions, seed=7),
+                                                     strict=True))
+    assert all(np.array_equal(x, y) for x, y in zip(first, rollout(a, actions, seed=7),
+                                                     strict=True))
+    other = rollout(a, actions, seed=8)  # another day: another ambient and passenger load
+    assert not np.array_equal(first[0], other[0])
+
+
+@pytest.mark.parametrize("bad, words", [
+    (np.full(len(ACTIONS), np.nan, np.float32), "finite"),
+    (np.full(len(ACTIONS), 1.5, np.float32), "[-1, 1]"),
+    (np.zeros(3, np.float32), "shape"),
+])
+def test_invalid_actions_raise_clear_errors(bad, words):
+    env = gym.make("EBus-v0", service_h=0.2, disable_env_checker=True)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=None) as info:
+        env.step(bad)
+    assert words in str(info.value) and "speed_cap_kmh" in str(info.value)
+
+
+def test_episode_energy_equals_one_continuous_run_of_the_model():
+    """Decision by decision with states carried is the same physics as one run of the
+    recorded inputs: battery and grid energy and the final SoC agree."""
+    env = gym.make("EBus-v0", service_h=1.5, layover_min=10.0, laps_per_trip=10).unwrapped
+    env.reset(seed=1)
+    model = env.model
+    start_states = env._states.copy()
+    rows, battery, grid = [], 0.0, 0.0
+    a = action(setpoint_degc=22.0, charge_power_frac=0.6)
+    terminated = False
+    while not terminated:
+        params = env._params.copy()
+        _, _, terminated, _, info = env.step(a)
+        rows.append(env._inputs[0].copy())
+        battery += info["battery_kwh"]
+        grid += info["grid_kwh"]
+    inputs = np.concatenate(rows, axis=1)
+    profile = Profile(dict(zip(model.input_names, inputs, strict=True)), model.dt_s)
+    initial = dict(zip(model.state_names, start_states[0], strict=True))
+    initial.pop("soc_frac")
+    run = model.simulate(profile, params[0], soc_start=float(start_states[0, 3]),
+                         record=False, **initial)
+    s = run.summary()
+    assert grid > 1.0 and s["grid_energy_kwh"] == pytest.approx(grid, rel=1e-9)
+    assert s["battery_energy_kwh"] == pytest.approx(battery, rel=1e-9, abs=1e-9)
+    assert s["soc_end_pct"] == pytest.approx(100 * env._states[0, 3], abs=1e-9)
+
+
+def test_speed_cap_keeps_the_stops_and_the_distance_and_takes_longer():
+    course = course_from_cycle("manhattan")
+    laps = {}
+    for cap_kmh in (80.0, 25.0):
+        state = reference.new_state()[None, :]
+        n = 30000
+        rows = np.zeros((1, 6, n))
+        reference.advance(state, course.speed_mps, course.grade_frac, course.step_m,
+                          course.stop_m, course.dwell_s, np.array([cap_kmh / 3.6]),
+                          np.array([1.5]), 1.0, 1.0, course.lap_time_s + 600, 60.0, 1.0,
+                          np.array([1e5]), 0.1, n, rows, np.arange(6))
+        speed, door, plugged = rows[0, 0], rows[0, 5], rows[0, 3]
+        arrive = int(np.argmax(plugged > 0))
+        position = np.cumsum(speed) * 0.1
+        opened = np.flatnonzero(np.diff(door[:arrive]) > 0) + 1
+        laps[cap_kmh] = (arrive * 0.1, position[arrive], position[opened], speed.max())
+    free, capped = laps[80.0], laps[25.0]
+    assert free[0] == pytest.approx(course.lap_time_s, rel=0.03)  # the cycle's own timing
+    assert capped[0] > free[0] + 20.0  # slower
+    assert capped[1] == pytest.approx(course.length_m, abs=1.0)  # same lap distance
+    assert free[1] == pytest.approx(course.length_m, abs=1.0)
+    np.testing.assert_allclose(capped[2], free[2], atol=1.0)  # the same stops
+    np.testing.assert_allclose(free[2], course.stop_m, atol=1.0)  # the terminal too
+    assert capped[3] <= 25.0 / 3.6 + 1e-9
+
+
+def test_speed_cap_lowers_traction_energy_and_delays_the_bus():
+    out = {}
+    for cap in (80.0, 30.0):
+        env = gym.make("EBus-v0", cycle="sort3", service_h=1.0, ambient_random_k=0.0).unwrapped
+        env.reset(seed=0)
+        traction = distance = 0.0
+        for _ in range(45):
+            _, _, _, _, info = env.step(action(speed_cap_kmh=cap))
+            traction += info["breakdown_kwh"]["traction"]
+            distance += info["distance_km"]
+        out[cap] = (traction / distance, info["schedule_delay_min"], distance)
+    assert out[30.0][0] < 0.9 * out[80.0][0]
+    assert out[30.0][1] > out[80.0][1] + 1.0
+    assert out[30.0][2] < out[80.0][2]  # in the same time it got less far
+
+
+def test_higher_setpoint_in_winter_raises_hvac_energy():
+    hvac = {}
+    for setpoint in (16.0, 24.0):
+        env = gym.make("EBus-v0", service_h=1.0, ambient_mean_degc=-5.0).unwrapped
+        env.reset(seed=0)
+        total = 0.0
+        for _ in range(60):
+            _, _, _, _, info = env.step(action(setpoint_degc=setpoint))
+            total += info["breakdown_kwh"]["cabin_hvac"]
+        hvac[setpoint] = total
+    assert hvac[24.0] > 1.2 * hvac[16.0] > 0
+
+
+def test_pulsed_charging_lowers_peak_grid_power_at_equal_energy():
+    """A long layover on the charger: pulses at half duty halve the grid power over each
+    decision; over the layover both fill the battery to the same SoC."""
+    result = {}
+    for duty in (1.0, 0.5):
+        env = gym.make("EBus-v0", cycle="sort1", laps_per_trip=1, service_h=5.0,
+                       layover_min=290.0, soc_start_pct=50.0, charger_kw=150.0).unwrapped
+        env.reset(seed=0)
+        grid, terminated = 0.0, False
+        while not terminated:
+            _, _, terminated, _, info = env.step(action(pulse_duty=duty))
+            grid += info["grid_kwh"]
+        result[duty] = (info["peak_grid_kw"], grid, env._states[0, 3])
+    assert result[0.5][0] < 0.6 * result[1.0][0]
+    assert result[0.5][1] == pytest.approx(result[1.0][1], rel=0.02)
+    assert result[0.5][2] == pytest.approx(result[1.0][2], abs=0.005)
+
+
+def test_rgb_render_shows_the_day_so_far():
+    env = gym.make("EBus-v0", service_h=0.2, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(action())
+    image = env.render()
+    assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
+    assert image.std() > 10  # not blank
