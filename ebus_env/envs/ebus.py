@@ -176,8 +176,8 @@ class EBusEnv(gym.Env):
 
     ## Episode End
     Terminated at the end of service (``service_h``) or when the battery is empty (its SoC
-    floor reached with demand unmet). Truncation: ``gymnasium.make`` adds a TimeLimit of the
-    service day's decisions plus 10 %.
+    floor reached with demand unmet). Truncation: ``gymnasium.make`` adds a TimeLimit of
+    2000 decisions (``max_episode_steps``; a 24 h day of 60 s decisions fits).
 
     ## Arguments
     ``gymnasium.make("EBus-v0", config="gothenburg_jan", **overrides)``: ``config`` names a
@@ -221,10 +221,10 @@ class EBusEnv(gym.Env):
         self._fill = {n: m.input_names.index(n) for n in
                       ("ambient_degc", "passenger_count", "time_of_day_h", "solar_w_per_m2")
                       if n in m.input_names}
+        capacity = next((p for p in m.param_names if p.endswith(".max_passengers")), "")
         self._param = {a: m.param_index(p) for a, p in (
             ("setpoint_degc", "cabin_hvac.setpoint_degc"), ("pulse_duty", "grid_charger.pulse_duty"),
-            ("power", "grid_charger.power_kw"), ("capacity", "passenger_load.max_passengers"))
-            if p in m.param_names}
+            ("power", "grid_charger.power_kw"), ("capacity", capacity)) if p in m.param_names}
         self._kernel = m.kernel("run")
         self._charger_w = 1e3 * (cfg.charger_kw if cfg.charger_kw is not None else
                                  m.params[self._param["power"]] if "power" in self._param
