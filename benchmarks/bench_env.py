@@ -14,7 +14,6 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 

@@ -218,9 +218,12 @@ class EBusEnv(gym.Env):
         self._rows_at = np.array([m.input_names.index(n) if n in m.input_names else -1
                                   for n in reference.ROW_NAMES], np.int64)
         self._inputs = np.zeros((1, len(m.input_names), self.n_rows))
+        # inputs held for a decision (solar stays 0: the input buffer starts zeroed)
         self._fill = {n: m.input_names.index(n) for n in
-                      ("ambient_degc", "passenger_count", "time_of_day_h", "solar_w_per_m2")
-                      if n in m.input_names}
+                      ("ambient_degc", "passenger_count", "time_of_day_h") if n in m.input_names}
+        self._row_h = np.arange(self.n_rows) * cfg.dt_s / 3600.0
+        self._i = {n: i for i, n in enumerate(m.state_names)}
+        self._energy_terms = [n for n, mode in m.layout.accumulators if mode == "sum"]
         capacity = next((p for p in m.param_names if p.endswith(".max_passengers")), "")
         self._param = {a: m.param_index(p) for a, p in (
             ("setpoint_degc", "cabin_hvac.setpoint_degc"), ("pulse_duty", "grid_charger.pulse_duty"),
@@ -266,13 +269,11 @@ class EBusEnv(gym.Env):
         first = {"speed_ref_mps": 0.0, "ambient_degc": self.ambient_degc(cfg.start_time_h)}
         self._states = m.initial_state(self._params[0], first, soc_start=cfg.soc_start_pct
                                        / 100.0)[None, :]
-        self._i = {n: m.state_names.index(n) for n in m.state_names}
         self._decision = 0
         self._peak_kw = 0.0
         self._departure_delay_s = 0.0
         self._history = []
-        obs = self._observe()
-        return obs, {"observation_names": self.observation_names}
+        return self._observe(self._delay_s()), {"observation_names": self.observation_names}
 
     def _mapped(self, action) -> dict[str, float]:
         a = np.asarray(action, dtype=np.float64)
@@ -308,39 +309,40 @@ class EBusEnv(gym.Env):
                           1.0 if cfg.charge_at_terminal else 0.0,
                           np.array([act["charge_power_frac"] * self._charger_w]), cfg.dt_s,
                           self.n_rows, inputs, self._rows_at)
-        for name, value in (("ambient_degc", ambient), ("passenger_count", passengers),
-                            ("solar_w_per_m2", 0.0)):
+        for name, value in (("ambient_degc", ambient), ("passenger_count", passengers)):
             if name in self._fill:
                 inputs[0, self._fill[name]] = value
         if "time_of_day_h" in self._fill:
-            inputs[0, self._fill["time_of_day_h"]] = (hour + np.arange(self.n_rows) * cfg.dt_s
-                                                      / 3600.0) % 24.0
+            inputs[0, self._fill["time_of_day_h"]] = (hour + self._row_h) % 24.0
         cabin_before = self._cabin()
         distance_before = self._states[0, self._i["distance_m"]]
         acc = m.new_accumulators(1)
         self._kernel(self._params, self._states, inputs, _ZERO, _ZERO, self.n_rows, cfg.dt_s,
                      0, _NO_SEL, _NO_REC, _NO_MASK, acc, 0, 1)
         self._decision += 1
-        info = self._info(acc, act, ambient, passengers, cabin_before, lap_before)
+        delay_s = self._delay_s()
+        info = self._info(acc, act, ambient, passengers, cabin_before, lap_before, delay_s)
         info["distance_km"] = (self._states[0, self._i["distance_m"]] - distance_before) / 1e3
         info["speed_kmh_mean"] = info["distance_km"] / (cfg.decision_s / 3600.0)
-        obs = self._observe()
-        soc = self._states[0, self._i["soc_frac"]]
+        obs = self._observe(delay_s)
         depleted = bool(info["battery_shortfall_kwh"] > 0.0)
         terminated = depleted or self._decision >= self._max_decisions
         info["depleted"] = depleted
-        self._history.append(np.array([self._decision * cfg.decision_s / 3600.0,
-                                       info["speed_kmh_mean"], soc, info["battery_kw"],
-                                       info["grid_kw"], self._cabin(), act["setpoint_degc"]]))
-        if self.render_mode == "human":
-            self.render()
+        if self.render_mode is not None:  # the day so far, for render()
+            self._history.append(np.array([
+                self._decision * cfg.decision_s / 3600.0, info["speed_kmh_mean"],
+                self._states[0, self._i["soc_frac"]], info["battery_kw"], info["grid_kw"],
+                self._cabin(), act["setpoint_degc"]]))
+            if self.render_mode == "human":
+                self.render()
         return obs, float(info["reward"]), terminated, False, info
 
     def _cabin(self) -> float:
         i = self._i.get("cabin_temp_degc")
         return float(self._states[0, i]) if i is not None else float("nan")
 
-    def _info(self, acc, act, ambient, passengers, cabin_before, lap_before) -> dict:
+    def _info(self, acc, act, ambient, passengers, cabin_before, lap_before,
+              delay_s) -> dict:
         cfg, m = self.config, self.model
         hours = cfg.decision_s / 3600.0
         col = dict(zip(m.accumulator_names, acc[0], strict=True))
@@ -363,22 +365,21 @@ class EBusEnv(gym.Env):
         reward, terms = self.reward_fn(battery_kwh=battery_kwh, grid_kwh=grid_kwh,
                                        peak_rise_kw=rise, comfort_kh=outside * hours,
                                        late_min=late_min, reserve_pct_h=deficit)
-        breakdown = {n: col[n] / J_PER_KWH for n in m.accumulator_names
-                     if n not in ("peak_grid", "soc_min", "max_behind")}
+        breakdown = {n: col[n] / J_PER_KWH for n in self._energy_terms}
         return {"reward": reward, "reward_terms": terms, "battery_kwh": battery_kwh,
                 "grid_kwh": grid_kwh, "grid_kw": grid_kw, "battery_kw": battery_kwh / hours,
                 "peak_grid_kw": self._peak_kw, "peak_grid_kw_in_step": col["peak_grid"] / 1e3,
                 "breakdown_kwh": breakdown,
                 "battery_shortfall_kwh": col["battery_shortfall"] / J_PER_KWH,
                 "comfort_band_degc": (low, high), "actions": act,
-                "schedule_delay_min": self._delay_s() / 60.0}
+                "schedule_delay_min": delay_s / 60.0}
 
     def _delay_s(self) -> float:
         c = self.course
         return reference.schedule_delay_s(self._ref[0], c.baseline_s, c.dwell_s, c.step_m,
                                           self.lap_period_s)
 
-    def _observe(self) -> np.ndarray:
+    def _observe(self, delay_s: float) -> np.ndarray:
         cfg, c = self.config, self.course
         t_h = cfg.start_time_h + self._decision * cfg.decision_s / 3600.0
         hour = t_h % 24.0
@@ -390,7 +391,7 @@ class EBusEnv(gym.Env):
                   passengers, 3.6 * self._states[0, self._i["speed_mps"]], hour,
                   0.0 if ref[reference.MODE] == reference.LAYOVER
                   else (c.length_m - ref[reference.S]) / 1e3,
-                  self._delay_s() / 60.0, float(ref[reference.MODE] == reference.LAYOVER
+                  delay_s / 60.0, float(ref[reference.MODE] == reference.LAYOVER
                                                 and self.config.charge_at_terminal),
                   3.6 * c.speed_mps[i], 100.0 * c.grade_frac[i],
                   max(cfg.service_h - self._decision * cfg.decision_s / 3600.0, 0.0), low, high)

@@ -112,6 +112,19 @@ def _read(path: Path) -> pd.DataFrame:
     return frame
 
 
+def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
+        Path, LoadReport, pd.DataFrame]:
+    """Read a log file and map its columns (a mapping or a preset's name); returns the path,
+    the report of what was done and the table with canonical column names."""
+    path = Path(path)
+    report = LoadReport(str(path))
+    if isinstance(columns, (str, Path)):
+        columns = column_preset(columns)
+    frame = _apply_columns(_read(path), columns, path, report)
+    report.rows = len(frame)
+    return path, report, frame
+
+
 def _apply_columns(frame: pd.DataFrame, columns: dict | None, path: Path,
                    report: LoadReport) -> pd.DataFrame:
     renamed = {}
@@ -296,12 +309,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
         raise ConfigError(f"gaps must be one of {GAP_POLICIES}, got '{gaps}'.")
     if fill not in FILL_POLICIES:
         raise ConfigError(f"fill must be one of {FILL_POLICIES}, got '{fill}'.")
-    path = Path(path)
-    report = LoadReport(str(path))
-    if isinstance(columns, (str, Path)):
-        columns = column_preset(columns)
-    frame = _apply_columns(_read(path), columns, path, report)
-    report.rows = len(frame)
+    path, report, frame = open_log(path, columns)
     if len(frame) < 2:
         raise LogError("The log needs at least two rows", path=path)
     t, start_h = _time(frame, path, report)

@@ -25,15 +25,7 @@ import numpy as np
 
 from ebus_env.cycles import Cycle, load_cycle
 from ebus_env.errors import LogError
-from ebus_env.io.measured import (
-    LoadReport,
-    MeasuredLog,
-    _apply_columns,
-    _numeric,
-    _read,
-    _time,
-    column_preset,
-)
+from ebus_env.io.measured import MeasuredLog, _numeric, _time, open_log
 from ebus_env.profile import Profile
 
 
@@ -42,12 +34,7 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
                     name: str | None = None) -> MeasuredLog:
     """Read a sparse log (``time_s``, ``distance_km`` cumulative, ``soc_pct``, optional
     ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module docstring)."""
-    path = Path(path)
-    report = LoadReport(str(path))
-    if isinstance(columns, (str, Path)):
-        columns = column_preset(columns)
-    frame = _apply_columns(_read(path), columns, path, report)
-    report.rows = len(frame)
+    path, report, frame = open_log(path, columns)
     t, start_h = _time(frame, path, report)
     for required in ("distance_km", "soc_pct"):
         if required not in frame.columns:
