@@ -1,5 +1,6 @@
-"""Environment speed (issue 5): decisions per second of EBus-v0 with random actions, 60 s
-decisions of 600 physics steps each. Prints a table; no assertions.
+"""Environment speed (issue 5): decisions per second with random actions, 60 s decisions of
+600 physics steps each, and PPO's training throughput on the native vector env. Prints a
+table; no assertions.
 
     python benchmarks/bench_env.py            # full run
     python benchmarks/bench_env.py --smoke    # CI: same code paths, few steps
@@ -20,31 +21,77 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import ebus_env  # noqa: E402, F401
 
 
-def decisions_per_s(env, steps: int, seed: int) -> float:
+def single_rate(env, steps: int, seed: int) -> float:
     env.reset(seed=seed)
     env.action_space.seed(seed)
     actions = [env.action_space.sample() for _ in range(steps)]
     t0 = time.perf_counter()
-    done = 0
     for a in actions:
         _, _, terminated, truncated, _ = env.step(a)
-        done += 1
         if terminated or truncated:
             env.reset()
-    return done / (time.perf_counter() - t0)
+    return steps / (time.perf_counter() - t0)
+
+
+def vector_rate(venv, steps: int, seed: int) -> float:
+    """Decisions per second over all sub-envs (autoreset inside)."""
+    venv.reset(seed=seed)
+    venv.action_space.seed(seed)
+    actions = [venv.action_space.sample() for _ in range(steps)]
+    t0 = time.perf_counter()
+    for a in actions:
+        venv.step(a)
+    return steps * venv.num_envs / (time.perf_counter() - t0)
+
+
+def ppo_rate(num_envs: int, steps: int) -> float:
+    """PPO (stable-baselines3 defaults, n_steps 128) env steps per second of learn()."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from ebus_env.envs.sb3 import SB3VecEnv
+
+    venv = VecMonitor(SB3VecEnv(num_envs=num_envs))
+    model = PPO("MlpPolicy", venv, n_steps=128, batch_size=256, seed=0, device="cpu")
+    t0 = time.perf_counter()
+    model.learn(steps)
+    return steps / (time.perf_counter() - t0)
+
+
+def median(rate, repeats: int) -> float:
+    return statistics.median(rate(seed) for seed in range(repeats))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--smoke", action="store_true")
     args = parser.parse_args()
-    steps, repeats = (50, 1) if args.smoke else (3000, 3)
-    print("EBus-v0, random actions, 60 s decisions (600 steps at 10 Hz); target >= 10,000/s")
-    for label, env in (("gymnasium.make (checker and order wrappers)", gym.make("EBus-v0")),
-                       ("the env itself (env.unwrapped)", gym.make("EBus-v0").unwrapped)):
-        decisions_per_s(env, 5, 0)  # compile or load the kernels
-        rates = [decisions_per_s(env, steps, seed) for seed in range(repeats)]
-        print(f"  {label:50s} {statistics.median(rates):10,.0f} decisions/s")
+    smoke = args.smoke
+    steps, repeats = (20, 1) if smoke else (3000, 3)
+    print("Random actions, 60 s decisions (600 steps at 10 Hz); medians of "
+          f"{repeats} runs")
+    print(f"  {'env':55s} {'decisions/s':>12s}  target")
+    for label, env in (("EBus-v0, gymnasium.make (checker and order wrappers)",
+                        gym.make("EBus-v0")),
+                       ("EBus-v0, the env itself (env.unwrapped)", gym.make("EBus-v0").unwrapped)):
+        single_rate(env, 5, 0)  # compile or load the kernels
+        rate = median(lambda s, env=env: single_rate(env, steps, s), repeats)
+        print(f"  {label:55s} {rate:12,.0f}  >= 10,000")
+    for n in (1, 16, 64, 256):
+        venv = gym.make_vec("EBus-v0", num_envs=n)
+        vector_rate(venv, 3, 0)
+        n_steps = max(5, (steps * 4) // n) if not smoke else 3
+        rate = median(lambda s, venv=venv, k=n_steps: vector_rate(venv, k, s), repeats)
+        label = f"EBus-v0 native vector env, {n} sub-envs (make_vec)"
+        print(f"  {label:55s} {rate:12,.0f}  {'>= 100,000' if n == 64 else ''}")
+    env = gym.make("EBusFleet-v0", config="fleet_sort2").unwrapped
+    single_rate(env, 3, 0)
+    rate = median(lambda s: single_rate(env, max(steps // 5, 3), s), repeats)
+    label = "EBusFleet-v0, 6 buses (fleet decisions; x6 bus-decisions)"
+    print(f"  {label:55s} {rate:12,.0f}")
+    n_ppo, n_envs = (256, 2) if smoke else (65_536, 64)
+    label = f"PPO learn(), SB3VecEnv with {n_envs} sub-envs (env steps/s)"
+    print(f"  {label:55s} {ppo_rate(n_envs, n_ppo):12,.0f}")
 
 
 if __name__ == "__main__":

@@ -80,14 +80,14 @@ def test_episode_energy_equals_one_continuous_run_of_the_model():
     env = gym.make("EBus-v0", service_h=1.5, layover_min=10.0, laps_per_trip=10).unwrapped
     env.reset(seed=1)
     model = env.model
-    start_states = env._states.copy()
+    start_states = env.buses.states.copy()
     rows, battery, grid = [], 0.0, 0.0
     a = action(setpoint_degc=22.0, charge_power_frac=0.6)
     terminated = False
     while not terminated:
-        params = env._params.copy()
+        params = env.buses.params.copy()
         _, _, terminated, _, info = env.step(a)
-        rows.append(env._inputs[0].copy())
+        rows.append(env.buses.inputs[0].copy())
         battery += info["battery_kwh"]
         grid += info["grid_kwh"]
     inputs = np.concatenate(rows, axis=1)
@@ -99,7 +99,7 @@ def test_episode_energy_equals_one_continuous_run_of_the_model():
     s = run.summary()
     assert grid > 1.0 and s["grid_energy_kwh"] == pytest.approx(grid, rel=1e-9)
     assert s["battery_energy_kwh"] == pytest.approx(battery, rel=1e-9, abs=1e-9)
-    assert s["soc_end_pct"] == pytest.approx(100 * env._states[0, 3], abs=1e-9)
+    assert s["soc_end_pct"] == pytest.approx(100 * env.buses.states[0, 3], abs=1e-9)
 
 
 def test_speed_cap_keeps_the_stops_and_the_distance_and_takes_longer():
@@ -169,7 +169,7 @@ def test_pulsed_charging_lowers_peak_grid_power_at_equal_energy():
         while not terminated:
             _, _, terminated, _, info = env.step(action(pulse_duty=duty))
             grid += info["grid_kwh"]
-        result[duty] = (info["peak_grid_kw"], grid, env._states[0, 3])
+        result[duty] = (info["peak_grid_kw"], grid, env.buses.states[0, 3])
     assert result[0.5][0] < 0.6 * result[1.0][0]
     assert result[0.5][1] == pytest.approx(result[1.0][1], rel=0.02)
     assert result[0.5][2] == pytest.approx(result[1.0][2], abs=0.005)

@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import yaml
 
-from ebus_env.config import ROOT, BusConfig, load_bus
-from ebus_env.effects.vehicle import COMMUTER_SHAPE
-from ebus_env.envs import reference
-from ebus_env.envs.course import Course, course_from_cycle, course_from_route
-from ebus_env.envs.reward import Reward, comfort_band_degc
+from ebus_env.config import ROOT
+from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
+from ebus_env.envs.reward import TERMS, Reward
 from ebus_env.errors import ConfigError
-from ebus_env.model.results import battery_energy_j
-from ebus_env.units import J_PER_KWH
 
 CONFIG_DIR = ROOT / "configs" / "env"
 
@@ -28,11 +23,7 @@ class ActionRange:
     unit: str
     low: float
     high: float
-    meaning: str
-
-    def value(self, a: np.ndarray) -> np.ndarray:
-        """[-1, 1] to [low, high], linearly."""
-        return self.low + 0.5 * (a + 1.0) * (self.high - self.low)
+    meaning: str  # mapped linearly from [-1, 1] onto [low, high] (``physical``)
 
 
 ACTIONS = (
@@ -45,22 +36,33 @@ ACTIONS = (
     ActionRange("pulse_duty", "1", 0.2, 1.0,
                 "ECO-charging: pulse duty cycle (1: continuous charging)"),
 )
-OBSERVATIONS = (  # name, unit, low, high
-    ("soc", "1", 0.0, 1.0),
-    ("cabin_temp_degc", "degC", -40.0, 60.0),
-    ("ambient_degc", "degC", -40.0, 50.0),
-    ("passengers", "1", 0.0, 250.0),
-    ("speed_kmh", "km/h", 0.0, 120.0),
-    ("time_of_day_h", "h", 0.0, 24.0),
-    ("distance_to_charger_km", "km", 0.0, 200.0),
-    ("schedule_delay_min", "min", -60.0, 60.0),
-    ("charger_connected", "1", 0.0, 1.0),
-    ("course_speed_kmh", "km/h", 0.0, 120.0),
-    ("grade_pct", "%", -20.0, 20.0),
-    ("service_left_h", "h", 0.0, 24.0),
-    ("comfort_low_degc", "degC", -40.0, 60.0),
-    ("comfort_high_degc", "degC", -40.0, 60.0),
-)
+ACTION_LOW = np.array([r.low for r in ACTIONS])
+ACTION_SPAN = np.array([r.high - r.low for r in ACTIONS])
+
+
+def checked_actions(actions, shape: tuple[int, ...], names: list[str], env: str) -> np.ndarray:
+    """Actions as float64 of ``shape``, each finite and in [-1, 1], or a clear error naming
+    the first bad one (``names`` along the last axis)."""
+    a = np.asarray(actions, dtype=np.float64)
+    if a.shape == shape and a.size:  # the common case, quickly (NaN fails both comparisons)
+        low, high = a.min(), a.max()
+        if -1.0 <= low and high <= 1.0:
+            return a
+    if a.shape != shape:
+        raise ValueError(f"Action has shape {a.shape}; {env} takes {shape} ({', '.join(names)}),"
+                         " each in [-1, 1].")
+    bad = ~np.isfinite(a) | (a < -1.0 - 1e-6) | (a > 1.0 + 1e-6)
+    if bad.any():
+        i = np.unravel_index(int(np.flatnonzero(bad)[0]), a.shape)
+        where = ", ".join(str(int(k)) for k in i)
+        raise ValueError(f"Action [{where}] ({names[i[-1]]}) = {a[i]}: every action must be a "
+                         f"finite number in [-1, 1] (the env maps it onto its range).")
+    return np.clip(a, -1.0, 1.0)
+
+
+def physical(actions: np.ndarray) -> np.ndarray:
+    """Checked actions (..., 5) in [-1, 1] -> values in the units of ``ACTIONS``."""
+    return ACTION_LOW + 0.5 * (actions + 1.0) * ACTION_SPAN
 
 
 @dataclass(frozen=True)
@@ -90,7 +92,7 @@ class EnvConfig:
     passengers_random_frac: float = 0.15  # each drawn +- this per episode
     jerk_mps3: float = 1.0  # ramp of the acceleration (paper App. B.1)
     comfort_decel_mps2: float = 1.0  # braking towards stops
-    reward: dict = field(default_factory=dict)  # weights of Reward
+    reward: dict | Reward = field(default_factory=dict)  # weights of Reward, or one
 
     @classmethod
     def load(cls, source: str | Path | dict | None = None, **overrides) -> EnvConfig:
@@ -180,10 +182,15 @@ class EBusEnv(gym.Env):
     2000 decisions (``max_episode_steps``; a 24 h day of 60 s decisions fits).
 
     ## Arguments
-    ``gymnasium.make("EBus-v0", config="gothenburg_jan", **overrides)``: ``config`` names a
+    ``gymnasium.make("EBus-v0", config="kc45_hilly", **overrides)``: ``config`` names a
     file in ``configs/env`` (or a path or a dict); overrides are :class:`EnvConfig` keys
     (``bus``, ``overlay``, ``cycle``/``route``, ``service_h``, ``decision_s``,
-    ``ambient_mean_degc``, ``reward``, ...). ``render_mode``: ``"rgb_array"`` or ``"human"``.
+    ``ambient_mean_degc``, ``reward`` (weights, or a :class:`Reward`), ...).
+    ``render_mode``: ``"rgb_array"`` or ``"human"``.
+    ``gymnasium.make_vec("EBus-v0", num_envs=64, ...)`` gives the native vector env
+    (:class:`ebus_env.envs.vector.EBusVectorEnv`: one compiled call for all sub-envs, equal
+    to single envs seeded ``seed + i``); :class:`ebus_env.envs.sb3.SB3VecEnv` adapts it to
+    stable-baselines3.
 
     ## Version History
     * v0: first version.
@@ -194,209 +201,46 @@ class EBusEnv(gym.Env):
     def __init__(self, config: str | Path | dict | None = None, render_mode: str | None = None,
                  **overrides):
         self.config = cfg = EnvConfig.load(config, **overrides)
-        if cfg.decision_s < cfg.dt_s or abs(cfg.decision_s / cfg.dt_s
-                                             - round(cfg.decision_s / cfg.dt_s)) > 1e-6:
-            raise ConfigError(f"decision_s = {cfg.decision_s} must be a multiple of dt_s = "
-                              f"{cfg.dt_s}.")
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ConfigError(f"render_mode '{render_mode}': use one of "
                               f"{self.metadata['render_modes']} or None.")
         self.render_mode = render_mode
-        self.bus: BusConfig = load_bus(cfg.bus, overlays=[cfg.overlay] if cfg.overlay else ())
-        self.model = self.bus.build(cfg.dt_s)
-        self.course: Course = _course(cfg)
-        self.reward_fn = Reward(**cfg.reward)
-        self.n_rows = int(round(cfg.decision_s / cfg.dt_s))
-        self.lap_period_s = self.course.lap_time_s + 60.0 * cfg.layover_min
+        self.buses = BusBatch(cfg, 1)
+        self.bus, self.model, self.course = self.buses.bus, self.buses.model, self.buses.course
+        self.reward_fn = reward_of(cfg)
         self.observation_names = [o[0] for o in OBSERVATIONS]
         self.action_names = [a.name for a in ACTIONS]
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTIONS),), np.float32)
-        self.observation_space = gym.spaces.Box(
-            np.array([o[2] for o in OBSERVATIONS], np.float32),
-            np.array([o[3] for o in OBSERVATIONS], np.float32), dtype=np.float32)
-        m = self.model
-        self._rows_at = np.array([m.input_names.index(n) if n in m.input_names else -1
-                                  for n in reference.ROW_NAMES], np.int64)
-        self._inputs = np.zeros((1, len(m.input_names), self.n_rows))
-        # inputs held for a decision (solar stays 0: the input buffer starts zeroed)
-        self._fill = {n: m.input_names.index(n) for n in
-                      ("ambient_degc", "passenger_count", "time_of_day_h") if n in m.input_names}
-        self._row_h = np.arange(self.n_rows) * cfg.dt_s / 3600.0
-        self._i = {n: i for i, n in enumerate(m.state_names)}
-        self._energy_terms = [n for n, mode in m.layout.accumulators if mode == "sum"]
-        capacity = next((p for p in m.param_names if p.endswith(".max_passengers")), "")
-        self._param = {a: m.param_index(p) for a, p in (
-            ("setpoint_degc", "cabin_hvac.setpoint_degc"), ("pulse_duty", "grid_charger.pulse_duty"),
-            ("power", "grid_charger.power_kw"), ("capacity", capacity)) if p in m.param_names}
-        self._kernel = m.kernel("run")
-        self._charger_w = 1e3 * (cfg.charger_kw if cfg.charger_kw is not None else
-                                 m.params[self._param["power"]] if "power" in self._param
-                                 else 0.0)
-        self._max_decisions = int(math.ceil(cfg.service_h * 3600.0 / cfg.decision_s))
+        self.action_space, self.observation_space = spaces()
         self._history: list[np.ndarray] = []
-        self._states = None
+        self._started = False
 
-    # -- the day ---------------------------------------------------------------------------
-    def _draw_day(self) -> None:
-        cfg, rng = self.config, self.np_random
-        self._ambient_mean = cfg.ambient_mean_degc + rng.uniform(-1, 1) * cfg.ambient_random_k
-        r = cfg.passengers_random_frac
-        base = float(np.clip(cfg.passengers_base_frac + rng.uniform(-r, r), 0.0, 1.0))
-        self._passengers = (base, float(np.clip(cfg.passengers_peak_frac + rng.uniform(-r, r),
-                                                base, 1.0)))
-
-    def ambient_degc(self, time_of_day_h: float) -> float:
-        """Daily cycle: coldest at 05:00, warmest at 15:00, half-cosines between."""
-        since_min = (time_of_day_h - 5.0) % 24.0
-        shape = -math.cos(math.pi * since_min / 10.0) if since_min <= 10.0 else \
-            math.cos(math.pi * (since_min - 10.0) / 14.0)
-        return self._ambient_mean + self.config.ambient_amplitude_k * shape
-
-    def passengers(self, time_of_day_h: float) -> float:
-        x, y = COMMUTER_SHAPE.presets["commuter"].x, COMMUTER_SHAPE.presets["commuter"].y
-        base, peak = self._passengers
-        return self._capacity * (base + (peak - base) * float(np.interp(time_of_day_h, x, y)))
-
-    # -- gym API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        cfg, m = self.config, self.model
-        self._draw_day()
-        self._params = m.params[None, :].copy()
-        self._capacity = float(self._params[0, self._param["capacity"]]) \
-            if "capacity" in self._param else 0.0
-        self._ref = reference.new_state()[None, :]
-        first = {"speed_ref_mps": 0.0, "ambient_degc": self.ambient_degc(cfg.start_time_h)}
-        self._states = m.initial_state(self._params[0], first, soc_start=cfg.soc_start_pct
-                                       / 100.0)[None, :]
-        self._decision = 0
-        self._peak_kw = 0.0
-        self._departure_delay_s = 0.0
+        self.buses.reset(0, self.np_random)
         self._history = []
-        return self._observe(self._delay_s()), {"observation_names": self.observation_names}
-
-    def _mapped(self, action) -> dict[str, float]:
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f"Action has shape {a.shape}; EBus-v0 takes {self.action_space.shape}"
-                             f" ({', '.join(self.action_names)}), each in [-1, 1].")
-        bad = ~np.isfinite(a) | (a < -1.0 - 1e-6) | (a > 1.0 + 1e-6)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"Action {i} ({self.action_names[i]}) = {a[i]}: every action must "
-                             "be a finite number in [-1, 1] (the env maps it onto its range).")
-        return {r.name: float(r.value(v)) for r, v in zip(ACTIONS, np.clip(a, -1.0, 1.0),
-                                                           strict=True)}
+        self._started = True
+        return self.buses.obs[0].copy(), {"observation_names": self.observation_names}
 
     def step(self, action):
-        if self._states is None:
+        if not self._started:
             raise RuntimeError("Call reset() before step().")
-        act = self._mapped(action)
-        cfg, m = self.config, self.model
-        hour = (cfg.start_time_h + self._decision * cfg.decision_s / 3600.0) % 24.0
-        ambient, passengers = self.ambient_degc(hour), self.passengers(hour)
-        if "setpoint_degc" in self._param:
-            self._params[0, self._param["setpoint_degc"]] = act["setpoint_degc"]
-        if "pulse_duty" in self._param:
-            self._params[0, self._param["pulse_duty"]] = act["pulse_duty"]
-        inputs = self._inputs
-        lap_before = self._ref[0, reference.LAP]
-        reference.advance(self._ref, self.course.speed_mps, self.course.grade_frac,
-                          self.course.step_m, self.course.stop_m, self.course.dwell_s,
-                          np.array([act["speed_cap_kmh"] / 3.6]),
-                          np.array([act["accel_cap_mps2"]]), cfg.jerk_mps3,
-                          cfg.comfort_decel_mps2, self.lap_period_s, 60.0 * cfg.min_layover_min,
-                          1.0 if cfg.charge_at_terminal else 0.0,
-                          np.array([act["charge_power_frac"] * self._charger_w]), cfg.dt_s,
-                          self.n_rows, inputs, self._rows_at)
-        for name, value in (("ambient_degc", ambient), ("passenger_count", passengers)):
-            if name in self._fill:
-                inputs[0, self._fill[name]] = value
-        if "time_of_day_h" in self._fill:
-            inputs[0, self._fill["time_of_day_h"]] = (hour + self._row_h) % 24.0
-        cabin_before = self._cabin()
-        distance_before = self._states[0, self._i["distance_m"]]
-        acc = m.new_accumulators(1)
-        self._kernel(self._params, self._states, inputs, _ZERO, _ZERO, self.n_rows, cfg.dt_s,
-                     0, _NO_SEL, _NO_REC, _NO_MASK, acc, 0, 1)
-        self._decision += 1
-        delay_s = self._delay_s()
-        info = self._info(acc, act, ambient, passengers, cabin_before, lap_before, delay_s)
-        info["distance_km"] = (self._states[0, self._i["distance_m"]] - distance_before) / 1e3
-        info["speed_kmh_mean"] = info["distance_km"] / (cfg.decision_s / 3600.0)
-        obs = self._observe(delay_s)
-        depleted = bool(info["battery_shortfall_kwh"] > 0.0)
-        terminated = depleted or self._decision >= self._max_decisions
-        info["depleted"] = depleted
+        values = physical(checked_actions(action, self.action_space.shape, self.action_names,
+                                          "EBus-v0"))
+        buses = self.buses
+        buses.step(values[None])
+        reward, costs = self.reward_fn(buses.quantities)
+        depleted, end = buses.ended()
+        info = bus_info(buses, 0, values, costs[0])
+        info["reward"] = float(reward[0])
+        info["depleted"] = bool(depleted[0])
         if self.render_mode is not None:  # the day so far, for render()
             self._history.append(np.array([
-                self._decision * cfg.decision_s / 3600.0, info["speed_kmh_mean"],
-                self._states[0, self._i["soc_frac"]], info["battery_kw"], info["grid_kw"],
-                self._cabin(), act["setpoint_degc"]]))
+                buses.decisions()[0] * self.config.decision_s / 3600.0, info["speed_kmh_mean"],
+                buses.states[0, buses.at[S_SOC]], info["battery_kw"], info["grid_kw"],
+                buses.cabin_degc(0), values[2]]))
             if self.render_mode == "human":
                 self.render()
-        return obs, float(info["reward"]), terminated, False, info
-
-    def _cabin(self) -> float:
-        i = self._i.get("cabin_temp_degc")
-        return float(self._states[0, i]) if i is not None else float("nan")
-
-    def _info(self, acc, act, ambient, passengers, cabin_before, lap_before,
-              delay_s) -> dict:
-        cfg, m = self.config, self.model
-        hours = cfg.decision_s / 3600.0
-        col = dict(zip(m.accumulator_names, acc[0], strict=True))
-        _, chemical = battery_energy_j(m, acc)
-        battery_kwh = float(chemical[0]) / J_PER_KWH
-        grid_kwh = col["grid"] / J_PER_KWH
-        grid_kw = grid_kwh / hours
-        rise = max(grid_kw - self._peak_kw, 0.0)
-        self._peak_kw = max(self._peak_kw, grid_kw)
-        low, high = comfort_band_degc(ambient, passengers, self._capacity)
-        cabin = 0.5 * (cabin_before + self._cabin())
-        outside = max(low - cabin, cabin - high, 0.0) if math.isfinite(cabin) else 0.0
-        late_min = 0.0
-        if self._ref[0, reference.LAP] > lap_before:  # departed: the new delay at departure
-            new = max(self._ref[0, reference.DEP_DELAY], 0.0)
-            late_min = max(new - self._departure_delay_s, 0.0) / 60.0
-            self._departure_delay_s = new
-        soc = self._states[0, self._i["soc_frac"]]
-        deficit = max(cfg.reserve_soc_pct - 100.0 * soc, 0.0) * hours
-        reward, terms = self.reward_fn(battery_kwh=battery_kwh, grid_kwh=grid_kwh,
-                                       peak_rise_kw=rise, comfort_kh=outside * hours,
-                                       late_min=late_min, reserve_pct_h=deficit)
-        breakdown = {n: col[n] / J_PER_KWH for n in self._energy_terms}
-        return {"reward": reward, "reward_terms": terms, "battery_kwh": battery_kwh,
-                "grid_kwh": grid_kwh, "grid_kw": grid_kw, "battery_kw": battery_kwh / hours,
-                "peak_grid_kw": self._peak_kw, "peak_grid_kw_in_step": col["peak_grid"] / 1e3,
-                "breakdown_kwh": breakdown,
-                "battery_shortfall_kwh": col["battery_shortfall"] / J_PER_KWH,
-                "comfort_band_degc": (low, high), "actions": act,
-                "schedule_delay_min": delay_s / 60.0}
-
-    def _delay_s(self) -> float:
-        c = self.course
-        return reference.schedule_delay_s(self._ref[0], c.baseline_s, c.dwell_s, c.step_m,
-                                          self.lap_period_s)
-
-    def _observe(self, delay_s: float) -> np.ndarray:
-        cfg, c = self.config, self.course
-        t_h = cfg.start_time_h + self._decision * cfg.decision_s / 3600.0
-        hour = t_h % 24.0
-        passengers = self.passengers(hour)
-        low, high = comfort_band_degc(self.ambient_degc(hour), passengers, self._capacity)
-        ref = self._ref[0]
-        i = min(int(ref[reference.S] / c.step_m), len(c.speed_mps) - 1)
-        values = (self._states[0, self._i["soc_frac"]], self._cabin(), self.ambient_degc(hour),
-                  passengers, 3.6 * self._states[0, self._i["speed_mps"]], hour,
-                  0.0 if ref[reference.MODE] == reference.LAYOVER
-                  else (c.length_m - ref[reference.S]) / 1e3,
-                  delay_s / 60.0, float(ref[reference.MODE] == reference.LAYOVER
-                                                and self.config.charge_at_terminal),
-                  3.6 * c.speed_mps[i], 100.0 * c.grade_frac[i],
-                  max(cfg.service_h - self._decision * cfg.decision_s / 3600.0, 0.0), low, high)
-        obs = np.array([0.0 if not math.isfinite(v) else v for v in values], np.float32)
-        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+        return (buses.obs[0].copy(), info["reward"], bool(depleted[0] or end[0]), False, info)
 
     def render(self):
         if self.render_mode is None:
@@ -408,22 +252,25 @@ class EBusEnv(gym.Env):
         return draw(self, self.render_mode)
 
 
-_ZERO = np.zeros(1, np.int64)
-_NO_SEL = np.zeros(0, np.int64)
-_NO_REC = np.zeros((1, 0, 0), np.float32)
-_NO_MASK = np.zeros(1, np.bool_)
+def spaces() -> tuple[gym.spaces.Box, gym.spaces.Box]:
+    """Action and observation space of one bus."""
+    return (gym.spaces.Box(-1.0, 1.0, (len(ACTIONS),), np.float32),
+            gym.spaces.Box(OBS_LOW, OBS_HIGH, dtype=np.float32))
 
 
-def _course(cfg: EnvConfig) -> Course:
-    if cfg.route:
-        return course_from_route(cfg.route)
-    if not cfg.cycle:
-        raise ConfigError("An env config needs a 'cycle' or a 'route'.")
-    from ebus_env.cycles import load_cycle
+def reward_of(cfg: EnvConfig) -> Reward:
+    """The config's reward: a :class:`Reward` instance as is, a dict as its weights."""
+    return cfg.reward if isinstance(cfg.reward, Reward) else Reward(**cfg.reward)
 
-    lap = load_cycle(cfg.cycle)
-    laps = cfg.laps_per_trip or max(1, int(round(3600.0 / lap.duration_s)))
-    trip = lap
-    for _ in range(laps - 1):
-        trip = trip.then(lap)
-    return replace(course_from_cycle(trip), name=f"{laps} x {cfg.cycle}")
+
+def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> dict:
+    """``info`` of bus ``b``'s last decision: figures with units, reward terms, energy
+    breakdown [kWh], the actions in their units."""
+    info = dict(zip(OUT, buses.out[b].tolist(), strict=True))
+    hours = buses.config.decision_s / 3600.0
+    info["battery_kw"] = info["battery_kwh"] / hours
+    info["speed_kmh_mean"] = info["distance_km"] / hours
+    info["reward_terms"] = dict(zip(TERMS, costs.tolist(), strict=True))
+    info["breakdown_kwh"] = buses.breakdown_kwh(b)
+    info["actions"] = dict(zip((a.name for a in ACTIONS), values.tolist(), strict=True))
+    return info

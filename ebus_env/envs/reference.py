@@ -35,13 +35,18 @@ TAU_S = 1.0
 ARRIVED_M = 0.3  # a stop this close, nearly standing: arrived (snapped onto it)
 
 
-def new_state() -> np.ndarray:
-    """At the departure of the first lap."""
-    return np.zeros(len(STATE_NAMES))
+def new_state(first_departure_s: float = 0.0) -> np.ndarray:
+    """At the start of service: departing on the first lap, or (``first_departure_s`` > 0)
+    laying over on the charger until then (a fleet's later buses)."""
+    state = np.zeros(len(STATE_NAMES))
+    if first_departure_s > 0.0:
+        state[MODE], state[LAP] = LAYOVER, -1.0
+        state[TIMER], state[TIME] = first_departure_s, -first_departure_s
+    return state
 
 
 @numba.njit(cache=True, nogil=True)
-def _advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
+def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
                  lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, out,
                  rows_at):
     last = len(speed) - 1
@@ -115,13 +120,13 @@ def advance(states, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, d
     ``a_cap``, ``charger_w``; ``lap_period_s``: timetable time from one departure to the
     next (lap plus scheduled layover)."""
     for b in range(states.shape[0]):
-        _advance_one(states[b], speed, grade, step_m, stop_m, dwell_s, v_cap[b], a_cap[b],
+        advance_one(states[b], speed, grade, step_m, stop_m, dwell_s, v_cap[b], a_cap[b],
                      jerk, decel, lap_period_s, layover_min_s, charger_connected, charger_w[b],
                      dt, n, inputs[b], rows_at)
 
 
-def schedule_delay_s(state: np.ndarray, baseline_s: np.ndarray, dwell_s: np.ndarray,
-                     step_m: float, lap_period_s: float) -> float:
+@numba.njit(cache=True, nogil=True)
+def schedule_delay_s(state, baseline_s, dwell_s, step_m, lap_period_s):
     """How late the bus is against the timetable [s] (negative: early). On a layover: how
     late it will leave."""
     if state[MODE] == LAYOVER:
@@ -130,4 +135,4 @@ def schedule_delay_s(state: np.ndarray, baseline_s: np.ndarray, dwell_s: np.ndar
     due = state[LAP] * lap_period_s + baseline_s[i]
     if state[MODE] == DWELL:
         due += dwell_s[int(state[STOP])] - state[TIMER]
-    return float(state[TIME] - due)
+    return state[TIME] - due

@@ -33,7 +33,7 @@ def draw(env, mode: str):
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].set_title(f"{env.spec.id if env.spec else 'EBus'}: {env.course.name}, "
-                      f"decision {env._decision}")
+                      f"decision {int(env.buses.decisions()[0])}")
     if mode == "human":
         plt.show(block=False)
         plt.pause(0.001)

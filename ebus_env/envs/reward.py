@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
+
+import numba
+import numpy as np
+
+QUANTITIES = ("battery_kwh", "grid_kwh", "peak_rise_kw", "comfort_kh", "late_min",
+              "reserve_pct_h")
+"""What a decision is scored on, per bus (columns of the quantities the envs pass)."""
+TERMS = ("battery_energy", "grid_energy", "peak_power", "comfort", "delay", "reserve")
 
 
 @dataclass(frozen=True)
@@ -15,14 +23,14 @@ class Reward:
     E_battery  net energy out of the battery's chemical store [kWh]
     E_grid     energy drawn from the grid by the charger [kWh]
     dP_peak    rise of the episode's peak grid power (mean over a decision) [kW]: a
-               demand-charge proxy, paid once per kW of new peak
+               demand-charge proxy, paid once per kW of new peak (the fleet: the site's peak)
     D_comfort  cabin temperature outside the comfort band, integrated [K h]
     T_late     delay added at departures from the terminal beyond the layover slack [min]
     R          SoC below the reserve, integrated [%-points h]
 
     Defaults price energy at 1 per kWh, the peak like a monthly demand charge spread over a
     month's days (0.5 per kW), and comfort, delay and reserve high enough that the policy
-    does not buy energy with them.
+    does not buy energy with them. Another reward: subclass and override :meth:`costs`.
     """
 
     battery_per_kwh: float = 1.0
@@ -31,27 +39,30 @@ class Reward:
     comfort_per_kelvin_hour: float = 2.0
     delay_per_min: float = 0.5
     reserve_per_pct_hour: float = 5.0
+    weights: np.ndarray = field(init=False, repr=False, compare=False)
 
-    def terms(self, battery_kwh: float, grid_kwh: float, peak_rise_kw: float,
-              comfort_kh: float, late_min: float, reserve_pct_h: float) -> dict[str, float]:
-        """Each term of the cost (positive numbers, the reward is minus their sum)."""
-        return {"battery_energy": self.battery_per_kwh * battery_kwh,
-                "grid_energy": self.grid_per_kwh * grid_kwh,
-                "peak_power": self.peak_per_kw * peak_rise_kw,
-                "comfort": self.comfort_per_kelvin_hour * comfort_kh,
-                "delay": self.delay_per_min * late_min,
-                "reserve": self.reserve_per_pct_hour * reserve_pct_h}
+    def __post_init__(self):
+        object.__setattr__(self, "weights", np.array(
+            [self.battery_per_kwh, self.grid_per_kwh, self.peak_per_kw,
+             self.comfort_per_kelvin_hour, self.delay_per_min, self.reserve_per_pct_hour]))
 
-    def __call__(self, **quantities: float) -> tuple[float, dict[str, float]]:
-        terms = self.terms(**quantities)
-        return -sum(terms.values()), terms
+    def costs(self, quantities: np.ndarray) -> np.ndarray:
+        """(n, 6) quantities (columns ``QUANTITIES``) -> (n, 6) costs (columns ``TERMS``)."""
+        return quantities * self.weights
+
+    def __call__(self, quantities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rewards (n,) and costs (n, 6) of n buses' decisions."""
+        costs = self.costs(quantities)
+        return -costs.sum(axis=1), costs
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        out.pop("weights")
+        return out
 
 
-def comfort_band_degc(ambient_degc: float, passengers: float, capacity: float) -> tuple[
-        float, float]:
+@numba.njit(cache=True, nogil=True)
+def comfort_band_degc(ambient_degc, passengers, capacity):
     """Comfort band of the cabin [degC]: centred at 20 degC up to 15 degC outside and 0.25 K
     warmer per K above (adaptive comfort: people dressed for the weather, after EN 16798-1),
     +-2.5 K wide, narrowed by up to 1 K when the bus is full (crowding)."""

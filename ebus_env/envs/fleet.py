@@ -1,0 +1,277 @@
+"""``EBusFleet-v0``: buses on one or more lines sharing a terminal's chargers and its grid
+connection, driven by one central agent."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import gymnasium as gym
+import numba
+import numpy as np
+import yaml
+
+from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
+from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR, EnvConfig, bus_info, checked_actions, physical, reward_of
+from ebus_env.envs.reference import ROW_NAMES
+from ebus_env.envs.reward import TERMS
+from ebus_env.errors import ConfigError
+
+SITE_OBSERVATIONS = (  # name, unit, low, high
+    ("site_grid_kw", "kW", 0.0, 1e4),
+    ("site_peak_kw", "kW", 0.0, 1e4),
+    ("chargers_free", "1", 0.0, 100.0),
+    ("buses_waiting", "1", 0.0, 100.0),
+)
+CONNECTED, RATING = ROW_NAMES.index("charger_connected"), ROW_NAMES.index("charger_rating_w")
+PLUGGED = [o[0] for o in OBSERVATIONS].index("charger_connected")
+SHARED = ("decision_s", "dt_s", "start_time_h", "service_h")  # the same on every line
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """A site: lines of buses (each an env config of ``configs/env``, a path or a dict of
+    :class:`EnvConfig` keys, with ``buses``: how many run it) and the terminal they share:
+    ``chargers`` plugs and a grid connection of ``site_limit_kw``."""
+
+    lines: tuple = ({"config": "sort2_day", "buses": 6},)
+    chargers: int = 2
+    site_limit_kw: float = 600.0
+    reward: dict | None = None  # weights of Reward (None: the first line's)
+
+    @classmethod
+    def load(cls, source: str | Path | dict | None = None, **overrides) -> FleetConfig:
+        data: dict = {}
+        if isinstance(source, dict):
+            data = dict(source)
+        elif source is not None:
+            path = Path(source)
+            if not path.suffix:
+                path = CONFIG_DIR / f"{source}.yaml"
+            if not path.exists():
+                raise ConfigError(f"No fleet config '{source}' (looked for {path}).")
+            data = yaml.safe_load(path.read_text()) or {}
+        data.update(overrides)
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"Unknown fleet config key(s) {unknown}; known: {sorted(known)}.")
+        if "lines" in data:
+            data["lines"] = tuple(data["lines"])
+        out = cls(**data)
+        for i, line in enumerate(out.lines):
+            if not isinstance(line, dict) or int(line.get("buses", 0)) < 1:
+                raise ConfigError(f"lines[{i}] = {line!r}: each line is a mapping with "
+                                  "'buses' >= 1 and optionally 'config' and EnvConfig keys.")
+        if out.chargers < 1 or out.site_limit_kw <= 0.0:
+            raise ConfigError(f"chargers = {out.chargers} and site_limit_kw = "
+                              f"{out.site_limit_kw} must be positive.")
+        return out
+
+    def line_configs(self) -> list[tuple[EnvConfig, int]]:
+        out = []
+        for line in self.lines:
+            keys = dict(line)
+            n = int(keys.pop("buses"))
+            out.append((EnvConfig.load(keys.pop("config", None), **keys), n))
+        first = out[0][0]
+        for cfg, _ in out[1:]:
+            for key in SHARED:
+                if getattr(cfg, key) != getattr(first, key):
+                    raise ConfigError(f"Every line of a fleet needs the same {key} (the site "
+                                      f"runs one clock): {getattr(cfg, key)} vs "
+                                      f"{getattr(first, key)}.")
+        return out
+
+
+@numba.njit(cache=True, nogil=True)
+def share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
+               row0):
+    """The terminal's charging, row by row (in place): buses on a layover take a free plug
+    first come, first served (the others wait unconnected); the plugged buses' charger
+    ratings are scaled down together so that their grid draw, sum(P_rated / eta), stays
+    within ``limit_w`` (balanced sharing). ``plugged``, ``waiting_since`` (row index, -1:
+    not waiting) carry over between decisions; ``row0``: the first row's index."""
+    n, n_rows = connected.shape
+    for r in range(n_rows):
+        used = 0
+        for b in range(n):
+            if plugged[b] and connected[b, r] < 0.5:
+                plugged[b] = False
+            if connected[b, r] >= 0.5 and not plugged[b] and waiting_since[b] < 0:
+                waiting_since[b] = row0 + r
+            if connected[b, r] < 0.5:
+                waiting_since[b] = -1
+            used += plugged[b]
+        while used < chargers:  # the longest waiting takes the next free plug
+            first = -1
+            for b in range(n):
+                if waiting_since[b] >= 0 and (first < 0 or waiting_since[b] < waiting_since[first]):
+                    first = b
+            if first < 0:
+                break
+            plugged[first] = True
+            waiting_since[first] = -1
+            used += 1
+        draw_w = 0.0
+        for b in range(n):
+            if plugged[b]:
+                draw_w += rating_w[b, r] / efficiency[b]
+        scale = min(1.0, limit_w / draw_w) if draw_w > 0.0 else 1.0
+        for b in range(n):
+            if plugged[b]:
+                rating_w[b, r] *= scale
+            else:
+                connected[b, r] = 0.0
+                rating_w[b, r] = math.nan
+
+
+class EBusFleetEnv(gym.Env):
+    """Battery-electric buses on one or more lines sharing a terminal's chargers and its grid
+    connection, with ECO actions per bus chosen by one central agent.
+
+    ## Description
+    Each line (an ``EBus-v0`` config) runs ``buses`` buses at equal headways: bus ``k`` first
+    departs ``k`` lap periods / ``buses`` after the start of service and waits on the
+    terminal until then. All lines end at one terminal with ``chargers`` plugs behind a grid
+    connection of ``site_limit_kw``: a bus on its layover takes a free plug first come, first
+    served (or waits, not charging); the plugged buses' charger ratings are scaled down
+    together whenever their grid draw would exceed the site limit, at every 10 Hz step. Each
+    bus is the single env's physics (:class:`ebus_env.envs.batch.BusBatch`).
+
+    ## Action Space
+    ``Box(-1, 1, (5 n,), float32)``: bus ``b``'s five ``EBus-v0`` actions (speed cap,
+    acceleration cap, setpoint, charging power fraction, pulse duty) at ``5 b .. 5 b + 4``;
+    names in ``env.action_names``.
+
+    ## Observation Space
+    ``Box(float32, (14 n + 4,))``: each bus's 14 ``EBus-v0`` observations in turn (charger
+    connected: holding a plug), then the site's grid power over the last decision [kW], its
+    peak so far [kW], free chargers and buses waiting for one; names in
+    ``env.observation_names``.
+
+    ## Rewards
+    One reward for the site: the sum over buses of the ``Reward`` terms, with the peak term
+    on the *site's* peak grid power (its rise, [kW]): the demand charge of the connection.
+
+    ## Starting State
+    Service starts at ``start_time_h``: bus 0 of each line departs, the others wait on the
+    charger; each bus's day (ambient mean, passengers) is drawn from the seed in turn.
+
+    ## Episode End
+    Terminated at the end of service or when any bus's battery is empty. Truncation:
+    TimeLimit of 2000 decisions (``gymnasium.make``).
+
+    ## Arguments
+    ``gymnasium.make("EBusFleet-v0", config="fleet_sort2", chargers=2, site_limit_kw=600)``:
+    ``config`` names a file in ``configs/env`` (or a path or a dict) of :class:`FleetConfig`.
+    ``info["site_load_kw"]``: the site's grid power per decision so far [kW];
+    ``info["buses"]``: each bus's ``EBus-v0`` info.
+
+    ## Version History
+    * v0: first version.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: str | Path | dict | None = None, **overrides):
+        self.config = cfg = FleetConfig.load(config, **overrides)
+        self.lines: list[BusBatch] = []
+        for line_cfg, n in cfg.line_configs():
+            line = BusBatch(line_cfg, n)
+            line.offsets_s = np.arange(n) * line.lap_period_s / n  # equal headways
+            self.lines.append(line)
+        self.env_config = self.lines[0].config
+        self.n = sum(line.n for line in self.lines)
+        self.reward_fn = reward_of(EnvConfig(reward=cfg.reward) if cfg.reward is not None
+                                   else self.env_config)
+        self.action_names = [f"bus{b}.{a.name}" for b in range(self.n) for a in ACTIONS]
+        self.observation_names = [f"bus{b}.{o[0]}" for b in range(self.n)
+                                  for o in OBSERVATIONS] + [o[0] for o in SITE_OBSERVATIONS]
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTIONS) * self.n,), np.float32)
+        self.observation_space = gym.spaces.Box(
+            np.concatenate([np.tile(OBS_LOW, self.n), [o[2] for o in SITE_OBSERVATIONS]]
+                           ).astype(np.float32),
+            np.concatenate([np.tile(OBS_HIGH, self.n), [o[3] for o in SITE_OBSERVATIONS]]
+                           ).astype(np.float32), dtype=np.float32)
+        self._efficiency = np.concatenate([
+            np.full(line.n, line.params[0, line.efficiency_at] if line.efficiency_at >= 0
+                    else 1.0) for line in self.lines])
+        self._edges = np.cumsum([0] + [line.n for line in self.lines])
+        self._started = False
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        for line in self.lines:
+            for b in range(line.n):
+                line.reset(b, self.np_random)
+        self._plugged = np.zeros(self.n, np.bool_)
+        self._waiting_since = np.full(self.n, -1, np.int64)
+        self._site_kw: list[float] = []
+        self._peak_kw = 0.0
+        self._decision = 0
+        self._started = True
+        return self._observe(), {"observation_names": self.observation_names}
+
+    def step(self, action):
+        if not self._started:
+            raise RuntimeError("Call reset() before step().")
+        values = physical(checked_actions(action, self.action_space.shape, self.action_names,
+                                          "EBusFleet-v0").reshape(self.n, len(ACTIONS)))
+        for line, lo, hi in zip(self.lines, self._edges[:-1], self._edges[1:], strict=True):
+            line.values[:] = values[lo:hi]
+            line.drive(0, line.n)
+        self._share_site()
+        for line in self.lines:
+            line.run(0, line.n)
+        self._decision += 1
+        quantities = np.concatenate([line.quantities for line in self.lines])
+        _, bus_costs = self.reward_fn(quantities)
+        grid_kw = np.concatenate([line.column("grid_kw") for line in self.lines])
+        site_kw = float(grid_kw.sum())
+        rise_kw = max(site_kw - self._peak_kw, 0.0)
+        self._peak_kw = max(self._peak_kw, site_kw)
+        self._site_kw.append(site_kw)
+        site = quantities.sum(axis=0)
+        site[2] = rise_kw  # the demand charge is the site's
+        reward, costs = self.reward_fn(site[None])
+        ended = [line.ended() for line in self.lines]
+        depleted = any(d.any() for d, _ in ended)
+        terminated = depleted or all(e.all() for _, e in ended)
+        info = {"reward_terms": dict(zip(TERMS, costs[0].tolist(), strict=True)),
+                "site_grid_kw": site_kw, "site_peak_kw": self._peak_kw,
+                "site_limit_kw": self.config.site_limit_kw,
+                "site_load_kw": np.array(self._site_kw), "depleted": depleted,
+                "grid_kwh": float(site[1]), "battery_kwh": float(site[0]),
+                "buses": [bus_info(line, b, values[lo + b], bus_costs[lo + b])
+                          for line, lo in zip(self.lines, self._edges[:-1], strict=True)
+                          for b in range(line.n)]}
+        return self._observe(), float(reward[0]), terminated, False, info
+
+    def _share_site(self) -> None:
+        lines = self.lines
+        at = [(line.rows_at[CONNECTED], line.rows_at[RATING]) for line in lines]
+        if any(c < 0 or r < 0 for c, r in at):
+            raise ConfigError("A fleet's bus model needs a charger (inputs charger_connected "
+                              "and charger_rating_w).")
+        connected = np.concatenate([line.inputs[:, c, :] for line, (c, _) in zip(lines, at,
+                                                                                  strict=True)])
+        rating = np.concatenate([line.inputs[:, r, :] for line, (_, r) in zip(lines, at,
+                                                                              strict=True)])
+        share_site(connected, rating, self._efficiency, self._plugged, self._waiting_since,
+                   self.config.chargers, 1e3 * self.config.site_limit_kw,
+                   (self._decision) * lines[0].n_rows)
+        for line, (c, r), lo, hi in zip(lines, at, self._edges[:-1], self._edges[1:],
+                                        strict=True):
+            line.inputs[:, c, :] = connected[lo:hi]
+            line.inputs[:, r, :] = rating[lo:hi]
+
+    def _observe(self) -> np.ndarray:
+        buses = np.concatenate([line.obs for line in self.lines])
+        buses[:, PLUGGED] = self._plugged  # "charger connected": holding a plug
+        waiting = int((self._waiting_since >= 0).sum())
+        site = np.array([self._site_kw[-1] if self._site_kw else 0.0, self._peak_kw,
+                         self.config.chargers - int(self._plugged.sum()), waiting], np.float32)
+        obs = np.concatenate([buses.ravel(), site]).astype(np.float32)
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)

@@ -1,0 +1,130 @@
+"""The native vector env of ``EBus-v0``: ``num_envs`` buses in one :class:`BusBatch`.
+
+``gymnasium.make_vec("EBus-v0", num_envs=64)`` builds it (``vector_entry_point``). One step
+advances every sub-env with one call of each compiled pass (split over threads for 16 and
+more sub-envs), not a loop over single envs. Sub-env ``i`` of ``reset(seed=s)`` is seeded
+``s + i`` and equals ``gymnasium.make("EBus-v0")`` reset with that seed, step for step.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ebus_env.envs import MAX_DECISIONS
+from ebus_env.envs.batch import OBSERVATIONS, OUT, BusBatch
+from ebus_env.envs.ebus import ACTIONS, EnvConfig, checked_actions, physical, reward_of, spaces
+from ebus_env.envs.reward import TERMS
+
+
+class EBusVectorEnv(VectorEnv):
+    """``num_envs`` copies of ``EBus-v0`` (same config, own seeds) stepped together.
+
+    Arguments: ``num_envs``, ``config`` and overrides as for ``EBus-v0``,
+    ``max_episode_steps`` (the TimeLimit, 2000), ``autoreset_mode`` (``NEXT_STEP`` as
+    Gymnasium's own vector envs; ``SAME_STEP`` puts the last observation and info of an
+    ended episode in ``info["final_obs"]`` / ``info["final_info"]``, what stable-baselines3
+    expects: see :mod:`ebus_env.envs.sb3`). ``info`` holds arrays (num_envs,) of the
+    single env's figures, ``info["reward_terms"]`` and ``info["breakdown_kwh"]`` dicts of them.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, config: str | Path | dict | None = None,
+                 max_episode_steps: int = MAX_DECISIONS,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides):
+        mode = AutoresetMode(autoreset_mode)
+        if mode == AutoresetMode.DISABLED:
+            raise ValueError("EBusVectorEnv autoresets: use NEXT_STEP or SAME_STEP.")
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.config = cfg = EnvConfig.load(config, **overrides)
+        self.num_envs = num_envs
+        self.max_episode_steps = max_episode_steps
+        self.buses = BusBatch(cfg, num_envs)
+        self.reward_fn = reward_of(cfg)
+        self.single_action_space, self.single_observation_space = spaces()
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.observation_names = [o[0] for o in OBSERVATIONS]
+        self.action_names = [a.name for a in ACTIONS]
+        self._rngs: list[np.random.Generator] = []
+        self._ended = np.zeros(num_envs, bool)
+        self._elapsed = np.zeros(num_envs, np.int64)
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        if seed is None or isinstance(seed, int):
+            super().reset(seed=seed)
+            seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
+        elif len(seed) == self.num_envs:
+            seeds = list(seed)
+        else:
+            raise ValueError(f"reset(seed=...) takes an int or {self.num_envs} seeds, got "
+                             f"{len(seed)}.")
+        self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        for b in range(self.num_envs):
+            self.buses.reset(b, self._rngs[b])
+        self._ended[:] = False
+        self._elapsed[:] = 0
+        return self.buses.obs.copy(), {}
+
+    def step(self, actions):
+        if not self._rngs:
+            raise RuntimeError("Call reset() before step().")
+        values = physical(checked_actions(actions, self.action_space.shape, self.action_names,
+                                          "EBusVectorEnv"))
+        buses = self.buses
+        buses.step(values)
+        reward, costs = self.reward_fn(buses.quantities)
+        depleted, end = buses.ended()
+        self._elapsed += 1
+        terminated = depleted | end
+        truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
+        info = self._info(values, costs, depleted)
+        obs = buses.obs.copy()
+        if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
+            restarted = np.flatnonzero(self._ended)
+            for b in restarted:  # the ended episodes start again; their actions are ignored
+                self._restart(b)
+                obs[b] = buses.obs[b]
+            reward[restarted] = 0.0
+            terminated[restarted] = truncated[restarted] = False
+            self._ended = terminated | truncated
+            if len(restarted):  # their figures are of the ignored step: masked out
+                valid = ~np.isin(np.arange(self.num_envs), restarted)
+                info.update({f"_{k}": valid for k in list(info)})
+        else:
+            ended = np.flatnonzero(terminated | truncated)
+            if len(ended):
+                final = np.zeros(self.num_envs, bool)
+                final[ended] = True
+                info["final_obs"] = obs.copy()
+                info["final_info"] = info.copy()
+                info["_final_obs"] = info["_final_info"] = final
+                for b in ended:
+                    self._restart(b)
+                    obs[b] = buses.obs[b]
+        return obs, reward, terminated, truncated, info
+
+    def _restart(self, b: int) -> None:
+        self.buses.reset(b, self._rngs[b])
+        self._elapsed[b] = 0
+
+    def _info(self, values: np.ndarray, costs: np.ndarray, depleted: np.ndarray) -> dict:
+        buses = self.buses
+        hours = self.config.decision_s / 3600.0
+        info = {name: buses.out[:, i].copy() for i, name in enumerate(OUT)}
+        info["battery_kw"] = info["battery_kwh"] / hours
+        info["speed_kmh_mean"] = info["distance_km"] / hours
+        info["depleted"] = depleted
+        info["reward_terms"] = {t: costs[:, i] for i, t in enumerate(TERMS)}
+        kwh = buses.breakdown_matrix_kwh()
+        info["breakdown_kwh"] = {t: kwh[:, i] for i, t in enumerate(buses.energy_terms)}
+        info["actions"] = {a.name: values[:, i] for i, a in enumerate(ACTIONS)}
+        return info
+
+    def close_extras(self, **kwargs):
+        self._rngs = []

@@ -1,0 +1,178 @@
+"""The native vector env (equal to single envs, both autoreset modes, stable-baselines3) and
+EBusFleet-v0 (conformance, the shared chargers and the site's grid limit)."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import ebus_env  # noqa: F401  (registers the environments)
+from ebus_env.envs.fleet import CONNECTED, RATING
+from ebus_env.envs.vector import EBusVectorEnv
+
+SHORT = {"service_h": 0.3}  # 18 decisions: episodes end and restart within a test
+
+
+def single_rollouts(n, seed, actions, autoreset):
+    """What n single envs seeded seed + i give for the same actions, restarted as a vector
+    env restarts them."""
+    envs = [gym.make("EBus-v0", **SHORT) for _ in range(n)]
+    first = np.array([e.reset(seed=seed + i)[0] for i, e in enumerate(envs)])
+    ended = np.zeros(n, bool)
+    steps = []
+    for a in actions:
+        rows = []
+        for i, env in enumerate(envs):
+            if autoreset == AutoresetMode.NEXT_STEP and ended[i]:
+                rows.append((env.reset()[0], 0.0, False, False, None))
+                ended[i] = False
+                continue
+            obs, reward, terminated, truncated, _ = env.step(a[i])
+            final = None
+            if terminated or truncated:
+                ended[i] = True
+                if autoreset == AutoresetMode.SAME_STEP:
+                    final, obs = obs, env.reset()[0]
+            rows.append((obs, reward, terminated, truncated, final))
+        steps.append(rows)
+    return first, steps
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_vector_env_equals_single_envs_step_for_step(mode):
+    n = 17  # more than THREADS_FROM: the batch is split over threads
+    venv = gym.make_vec("EBus-v0", num_envs=n, autoreset_mode=mode, **SHORT)
+    assert isinstance(venv, EBusVectorEnv) and venv.metadata["autoreset_mode"] == mode
+    venv.action_space.seed(4)
+    actions = [venv.action_space.sample() for _ in range(40)]
+    obs, _ = venv.reset(seed=11)
+    first, steps = single_rollouts(n, 11, actions, mode)
+    np.testing.assert_array_equal(obs, first)
+    restarts = 0
+    for a, rows in zip(actions, steps, strict=True):
+        obs, reward, terminated, truncated, info = venv.step(a)
+        np.testing.assert_array_equal(obs, np.array([r[0] for r in rows]))
+        np.testing.assert_array_equal(reward, np.array([r[1] for r in rows]))
+        np.testing.assert_array_equal(terminated, np.array([r[2] for r in rows]))
+        np.testing.assert_array_equal(truncated, np.array([r[3] for r in rows]))
+        for i, r in enumerate(rows):
+            if r[4] is not None:
+                np.testing.assert_array_equal(info["final_obs"][i], r[4])
+                restarts += 1
+        if mode == AutoresetMode.NEXT_STEP and "_battery_kwh" in info:
+            restarts += int((~info["_battery_kwh"]).sum())
+    assert restarts >= n  # every sub-env ended and restarted at least once
+
+
+def test_vector_env_checks_actions_and_seeds():
+    venv = gym.make_vec("EBus-v0", num_envs=3, **SHORT)
+    venv.reset(seed=0)
+    bad = np.zeros((3, 5), np.float32)
+    bad[2, 1] = 2.0
+    with pytest.raises(ValueError, match=r"\[2, 1\] \(accel_cap_mps2\)"):
+        venv.step(bad)
+    with pytest.raises(ValueError, match="shape"):
+        venv.step(np.zeros(5, np.float32))
+    with pytest.raises(ValueError, match="3 seeds"):
+        venv.reset(seed=[1, 2])
+
+
+def test_stable_baselines3_ppo_runs_on_the_adapter_and_reloads(tmp_path):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from ebus_env.envs.sb3 import SB3VecEnv
+
+    venv = VecMonitor(SB3VecEnv(num_envs=4, **SHORT))
+    venv.seed(0)
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=2, seed=0,
+                device="cpu")
+    model.learn(256)
+    assert len(model.ep_info_buffer) >= 4  # episodes ended, were reset and logged
+    model.save(tmp_path / "ppo")
+    again = PPO.load(tmp_path / "ppo", device="cpu")
+    obs = venv.reset()
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0],
+                                  again.predict(obs, deterministic=True)[0])
+
+
+def fleet(**overrides):
+    return gym.make("EBusFleet-v0", config="fleet_sort2", **overrides)
+
+
+def test_fleet_passes_the_checkers_and_is_reproducible():
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = fleet(lines=[{"config": "sort2_day", "buses": 3, "service_h": 0.3}]).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env)
+        sb3_check_env(env, warn=True)
+    space = gym.spaces.Box(-1, 1, env.action_space.shape, np.float32, seed=1)
+    actions = [space.sample() for _ in range(10)]
+    runs = []
+    for _ in range(2):
+        obs, _ = env.reset(seed=5)
+        runs.append([obs] + [env.step(a)[0] for a in actions])
+    np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))
+
+
+def run_fleet(env, charge_frac=1.0, decisions=None):
+    """Full-power driving, charging at charge_frac; per decision: site kW, the 10 Hz charger
+    rows of every bus (connected, rating) and the buses' own grid power."""
+    env.reset(seed=0)
+    u = env.unwrapped
+    a = np.ones(env.action_space.shape, np.float32)
+    a[3::5] = 2.0 * (charge_frac - 0.1) / 0.9 - 1.0
+    out = []
+    while True:
+        _, _, terminated, truncated, info = env.step(a)
+        rows = [(line.inputs[:, line.rows_at[CONNECTED]].copy(),
+                 line.inputs[:, line.rows_at[RATING]].copy()) for line in u.lines]
+        out.append((info["site_grid_kw"], rows, sum(b["grid_kw"] for b in info["buses"])))
+        if terminated or truncated or (decisions and len(out) >= decisions):
+            return out, info
+
+
+def test_fleet_site_limit_and_chargers_hold_at_every_step():
+    limit_kw, chargers = 300.0, 2
+    env = fleet(site_limit_kw=limit_kw, chargers=chargers)
+    eff = env.unwrapped._efficiency
+    steps, info = run_fleet(env, decisions=300)
+    bound_kw, most_plugged = 0.0, 0
+    for site_kw, rows, buses_kw in steps:
+        assert site_kw == pytest.approx(buses_kw, rel=1e-12)  # the site is its buses
+        assert site_kw <= limit_kw + 1e-6
+        connected = np.concatenate([c for c, _ in rows])
+        rating = np.concatenate([r for _, r in rows])
+        most_plugged = max(most_plugged, int((connected > 0.5).sum(axis=0).max()))
+        draw_kw = np.nansum(np.where(connected > 0.5, rating, 0.0) / eff[:, None], axis=0) / 1e3
+        bound_kw = max(bound_kw, draw_kw.max())
+    assert most_plugged == chargers  # the plugs were all taken at times, never more
+    assert bound_kw == pytest.approx(limit_kw, rel=1e-9)  # the limit bit, exactly
+    assert info["site_peak_kw"] == pytest.approx(max(s[0] for s in steps))
+    assert len(info["site_load_kw"]) == len(steps)
+
+
+def test_fleet_lower_site_limit_lowers_the_peak_and_the_charge_in_the_same_layovers():
+    out = {}
+    for limit_kw in (1000.0, 250.0):
+        steps, info = run_fleet(fleet(site_limit_kw=limit_kw), decisions=240)
+        kw = np.array([s[0] for s in steps])
+        out[limit_kw] = (kw.max(), kw.sum() / 60.0)
+    assert out[250.0][0] <= 250.0 + 1e-6 < out[1000.0][0]
+    assert out[250.0][1] < 0.95 * out[1000.0][1]  # less energy through the connection
+
+
+def test_fleet_actions_are_checked_per_bus():
+    env = fleet(lines=[{"config": "sort2_day", "buses": 2}])
+    env.reset(seed=0)
+    bad = np.zeros(env.action_space.shape, np.float32)
+    bad[8] = np.nan
+    with pytest.raises(ValueError, match=r"bus1\.charge_power_frac"):
+        env.step(bad)
