@@ -13,7 +13,8 @@ import typer
 from ebus_env.errors import EbusError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Lo-Fi electric-bus model: simulate, calibrate, diagnose.")
+                  help="Lo-Fi electric-bus model: simulate, calibrate, diagnose; train and evaluate "
+                       "ECO policies.")
 
 BusOpt = Annotated[str, typer.Option("--bus", "-b", help="Bus config: name (12m, 18m, bmw_i3) "
                                                          "or path to a YAML file")]
@@ -469,6 +470,76 @@ def effects(
                 console.print(f"    {p.name:30s} {value:>10g} {p.unit:8s} "
                               f"[{p.bounds[0]:g}, {p.bounds[1]:g}]  {p.description}",
                               soft_wrap=True, highlight=False, markup=False)
+
+    _run(body)
+
+
+@app.command()
+def evaluate(
+    policy: Annotated[list[str], typer.Option(
+        help="rule:NAME (baseline, eco_driving, eco_comfort, eco_charging, eco_all) or "
+             "ppo:PATH (repeatable)")],
+    env: Annotated[str, typer.Option(help="Env config: name in configs/env or a YAML path")]
+    = "sort2_day",
+    episodes: Annotated[int, typer.Option(help="Held-out days (seeds 10000, 10001, ...)")] = 20,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="Override an env config key: key=value (repeatable)")] = None,
+    out: Annotated[Path, typer.Option(help="Folder for scores.json, CSV and plots")]
+    = Path("report/evaluate"),
+):
+    """Score policies on the same held-out days: energy, grid load, comfort, delay."""
+
+    def body():
+        from ebus_env.agents.evaluate import evaluate as run
+        from ebus_env.agents.evaluate import print_sheet
+        from ebus_env.agents.ppo import load_policy
+
+        console = _console()
+        sheet = run([load_policy(spec) for spec in policy], env, episodes=episodes,
+                    **_env_overrides(set_))
+        print_sheet(sheet, console)
+        for path in sheet.write(out):
+            console.print(f"[bold green]->[/] {path}")
+
+    _run(body)
+
+
+def _env_overrides(items: list[str] | None) -> dict:
+    import yaml
+
+    from ebus_env.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ConfigError(f"--set needs key=value, got '{item}'.")
+        key, value = item.split("=", 1)
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+@app.command()
+def train(
+    config: Annotated[Path | None, typer.Option(help="PPO config (configs/agents/ppo.yaml)")]
+    = None,
+    steps: Annotated[int | None, typer.Option(help="Total env steps (overrides the config)")]
+    = None,
+    seed: Annotated[int | None, typer.Option(help="Seed (overrides the config)")] = None,
+    out: Annotated[Path, typer.Option(help="Folder for the agent, checkpoints, TensorBoard")]
+    = Path("runs/ppo"),
+):
+    """Train PPO on EBus-v0's native vector env (stable-baselines3)."""
+
+    def body():
+        from ebus_env.agents.ppo import PPOConfig
+        from ebus_env.agents.ppo import train as run
+
+        overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed)) if v is not None}
+        cfg = PPOConfig.load(config, **overrides)
+        t0 = time.perf_counter()
+        path = run(cfg, out, progress=False)
+        _console().print(f"[bold green]agent ->[/] {path / 'model.zip'} ({cfg.total_steps:,} "
+                         f"steps in {time.perf_counter() - t0:.0f} s)")
 
     _run(body)
 

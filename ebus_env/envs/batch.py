@@ -326,7 +326,7 @@ class BusBatch:
         bk[PASSENGERS_PEAK] = float(np.clip(cfg.passengers_peak_frac + rng.uniform(-r, r),
                                             base, 1.0))
         self.params[b] = m.params
-        bk[CAPACITY] = self.params[b, self._capacity_at] if self._capacity_at >= 0 else 0.0
+        bk[CAPACITY] = self.capacity
         self.ref[b] = reference.new_state(self.offsets_s[b])
         first = {"speed_ref_mps": 0.0,
                  "ambient_degc": float(ambient_degc(bk[AMBIENT_MEAN], cfg.ambient_amplitude_k,
@@ -375,6 +375,11 @@ class BusBatch:
                self.quantities, self.out)
 
     # -- results ---------------------------------------------------------------------------
+    @property
+    def capacity(self) -> float:
+        """Passenger capacity of the bus (0 without a passenger effect)."""
+        return float(self.model.params[self._capacity_at]) if self._capacity_at >= 0 else 0.0
+
     def decisions(self) -> np.ndarray:
         return self.book[:, DECISION]
 

@@ -11,10 +11,11 @@ import yaml
 
 from ebus_env.config import ROOT
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
-from ebus_env.envs.reward import TERMS, Reward
+from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
 from ebus_env.errors import ConfigError
 
 CONFIG_DIR = ROOT / "configs" / "env"
+SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h")  # in info, with OUT
 
 
 @dataclass(frozen=True)
@@ -97,24 +98,31 @@ class EnvConfig:
     @classmethod
     def load(cls, source: str | Path | dict | None = None, **overrides) -> EnvConfig:
         """From a name in ``configs/env``, a YAML path or a mapping, with overrides."""
-        data: dict = {}
-        if isinstance(source, dict):
-            data = dict(source)
-        elif source is not None:
-            path = Path(source)
-            if not path.suffix:
-                path = CONFIG_DIR / f"{source}.yaml"
-            if not path.exists():
-                names = sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
-                raise ConfigError(f"No env config '{source}' (looked for {path}); shipped: "
-                                  f"{', '.join(names)}.")
-            data = yaml.safe_load(path.read_text()) or {}
-        data.update(overrides)
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"Unknown env config key(s) {unknown}; known: {sorted(known)}.")
-        return cls(**data)
+        return cls(**config_keys(cls, source, overrides, "env"))
+
+
+def config_keys(cls, source: str | Path | dict | None, overrides: dict, kind: str,
+                folder: Path = CONFIG_DIR) -> dict:
+    """The keys of a config dataclass ``cls`` from a mapping, a YAML path or a name in
+    ``folder``, with overrides on top; a missing file or an unknown key is a clear error."""
+    data: dict = {}
+    if isinstance(source, dict):
+        data = dict(source)
+    elif source is not None:
+        path = Path(source)
+        if not path.suffix:
+            path = folder / f"{source}.yaml"
+        if not path.exists():
+            names = sorted(p.stem for p in folder.glob("*.yaml"))
+            raise ConfigError(f"No {kind} config '{source}' (looked for {path}); shipped: "
+                              f"{', '.join(names)}.")
+        data = yaml.safe_load(path.read_text()) or {}
+    data.update(overrides)
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f"Unknown {kind} config key(s) {unknown}; known: {sorted(known)}.")
+    return data
 
 
 class EBusEnv(gym.Env):
@@ -270,6 +278,8 @@ def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> 
     hours = buses.config.decision_s / 3600.0
     info["battery_kw"] = info["battery_kwh"] / hours
     info["speed_kmh_mean"] = info["distance_km"] / hours
+    info.update(zip(SCORED, buses.quantities[b, len(QUANTITIES) - len(SCORED):].tolist(),
+                    strict=True))
     info["reward_terms"] = dict(zip(TERMS, costs.tolist(), strict=True))
     info["breakdown_kwh"] = buses.breakdown_kwh(b)
     info["actions"] = dict(zip((a.name for a in ACTIONS), values.tolist(), strict=True))

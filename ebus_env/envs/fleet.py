@@ -4,16 +4,15 @@ connection, driven by one central agent."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
 import numba
 import numpy as np
-import yaml
 
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
-from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR, EnvConfig, bus_info, checked_actions, physical, reward_of
+from ebus_env.envs.ebus import ACTIONS, EnvConfig, bus_info, checked_actions, config_keys, physical, reward_of
 from ebus_env.envs.reference import ROW_NAMES
 from ebus_env.envs.reward import TERMS
 from ebus_env.errors import ConfigError
@@ -42,21 +41,7 @@ class FleetConfig:
 
     @classmethod
     def load(cls, source: str | Path | dict | None = None, **overrides) -> FleetConfig:
-        data: dict = {}
-        if isinstance(source, dict):
-            data = dict(source)
-        elif source is not None:
-            path = Path(source)
-            if not path.suffix:
-                path = CONFIG_DIR / f"{source}.yaml"
-            if not path.exists():
-                raise ConfigError(f"No fleet config '{source}' (looked for {path}).")
-            data = yaml.safe_load(path.read_text()) or {}
-        data.update(overrides)
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"Unknown fleet config key(s) {unknown}; known: {sorted(known)}.")
+        data = config_keys(cls, source, overrides, "fleet")
         if "lines" in data:
             data["lines"] = tuple(data["lines"])
         out = cls(**data)

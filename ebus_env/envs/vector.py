@@ -17,8 +17,8 @@ from gymnasium.vector.utils import batch_space
 
 from ebus_env.envs import MAX_DECISIONS
 from ebus_env.envs.batch import OBSERVATIONS, OUT, BusBatch
-from ebus_env.envs.ebus import ACTIONS, EnvConfig, checked_actions, physical, reward_of, spaces
-from ebus_env.envs.reward import TERMS
+from ebus_env.envs.ebus import ACTIONS, SCORED, EnvConfig, checked_actions, physical, reward_of, spaces
+from ebus_env.envs.reward import QUANTITIES, TERMS
 
 
 class EBusVectorEnv(VectorEnv):
@@ -120,6 +120,8 @@ class EBusVectorEnv(VectorEnv):
         info["battery_kw"] = info["battery_kwh"] / hours
         info["speed_kmh_mean"] = info["distance_km"] / hours
         info["depleted"] = depleted
+        k = len(QUANTITIES) - len(SCORED)
+        info.update({name: buses.quantities[:, k + i].copy() for i, name in enumerate(SCORED)})
         info["reward_terms"] = {t: costs[:, i] for i, t in enumerate(TERMS)}
         kwh = buses.breakdown_matrix_kwh()
         info["breakdown_kwh"] = {t: kwh[:, i] for i, t in enumerate(buses.energy_terms)}

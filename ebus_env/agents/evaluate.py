@@ -1,0 +1,240 @@
+"""One evaluator, one score sheet: every policy on the same held-out days of ``EBus-v0``.
+
+Each policy drives ``episodes`` days seeded ``HELD_OUT_SEED + i`` (training uses seeds below
+it), all days at once in the native vector env. Per day it scores::
+
+    kWh/km        energy the bus used (from its pack or straight from the charger) per km
+    battery_kwh   net energy out of the pack's chemical store;  grid_kwh: from the grid
+    peak_grid_kw  highest grid power over a decision (60 s mean);  load_factor = mean / peak
+    comfort_kh    cabin outside the comfort band [K h];  late_min: delay at departures [min]
+    reward        the env's reward, summed
+
+and reports each as a mean with a 95 % confidence interval over the days (Student t), the
+savings of each ECO feature against the baseline, and a day of SoC, grid load and setpoint
+per policy.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from scipy import stats
+
+from ebus_env.envs.vector import EBusVectorEnv
+
+HELD_OUT_SEED = 10_000
+METRICS = (  # key, unit, what
+    ("kwh_per_km", "kWh/km", "energy used per km"),
+    ("traction_kwh_per_km", "kWh/km", "traction energy per km"),
+    ("hvac_kwh", "kWh", "cabin HVAC energy"),
+    ("battery_kwh", "kWh", "net energy out of the battery"),
+    ("grid_kwh", "kWh", "energy from the grid"),
+    ("peak_grid_kw", "kW", "peak grid power (60 s mean)"),
+    ("load_factor", "1", "mean / peak grid power"),
+    ("comfort_kh", "K h", "comfort violation"),
+    ("late_min", "min", "delay at departures"),
+    ("distance_km", "km", "distance driven"),
+    ("reward", "1", "episode reward"),
+)
+KEYS = [m[0] for m in METRICS]
+FEATURES = ("eco_driving", "eco_comfort", "eco_charging")
+
+
+@dataclass
+class PolicyScores:
+    """Per-day metrics of one policy (rows: days, columns: ``METRICS``) and its first day."""
+
+    name: str
+    days: np.ndarray
+    day: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def mean(self, key: str) -> float:
+        x = self.days[:, KEYS.index(key)]
+        return float(np.mean(x[np.isfinite(x)])) if np.isfinite(x).any() else float("nan")
+
+    def ci95(self, key: str) -> float:
+        """Half-width of the 95 % confidence interval of the mean (Student t)."""
+        x = self.days[:, KEYS.index(key)]
+        x = x[np.isfinite(x)]
+        if len(x) < 2:
+            return float("nan")
+        return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+
+
+def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
+    """Drive the days ``seeds`` with ``policy`` (``predict(obs)``), all at once."""
+    venv = EBusVectorEnv(num_envs=len(seeds), config=config,
+                         autoreset_mode=AutoresetMode.SAME_STEP, **overrides)
+    n = len(seeds)
+    if hasattr(policy, "for_env"):  # a rule: for this env's bus
+        policy = policy.for_env(venv)
+    obs, _ = venv.reset(seed=list(seeds))
+    total = {k: np.zeros(n) for k in ("distance_km", "traction", "hvac", "consumed",
+                                       "battery_kwh", "grid_kwh", "comfort_kh", "late_min",
+                                       "reward")}
+    peak = np.zeros(n)
+    running = np.ones(n, bool)
+    hours = venv.config.decision_s / 3600.0
+    day: dict[str, list] = {"time_h": [], "soc": [], "grid_kw": [], "setpoint_degc": [],
+                            "cabin_degc": []}
+    soc, cabin = venv.observation_names.index("soc"), venv.observation_names.index(
+        "cabin_temp_degc")
+    steps = 0
+    while running.any():
+        actions, _ = policy.predict(obs, deterministic=True)
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        steps += 1
+        kwh = info["breakdown_kwh"]
+        add = {"distance_km": info["distance_km"], "traction": kwh["traction"],
+               "hvac": kwh.get("cabin_hvac", np.zeros(n)),
+               "consumed": info["battery_kwh"] + kwh["charger"],
+               "battery_kwh": info["battery_kwh"], "grid_kwh": info["grid_kwh"],
+               "comfort_kh": info["comfort_kh"], "late_min": info["late_min"], "reward": reward}
+        for k, v in add.items():
+            total[k] += np.where(running, v, 0.0)
+        peak = np.where(running, np.maximum(peak, info["grid_kw"]), peak)
+        if running[0]:
+            last = info["final_obs"][0] if "final_obs" in info and info["_final_obs"][0] else obs[0]
+            day["time_h"].append(steps * hours)
+            day["soc"].append(float(last[soc]))
+            day["grid_kw"].append(float(info["grid_kw"][0]))
+            day["setpoint_degc"].append(float(info["actions"]["setpoint_degc"][0]))
+            day["cabin_degc"].append(float(last[cabin]))
+        running &= ~(terminated | truncated)
+    distance = np.maximum(total["distance_km"], 1e-9)
+    service_h = venv.config.service_h
+    with np.errstate(invalid="ignore", divide="ignore"):
+        load_factor = np.where(peak > 0, total["grid_kwh"] / service_h / peak, np.nan)
+    columns = {"kwh_per_km": total["consumed"] / distance,
+               "traction_kwh_per_km": total["traction"] / distance, "hvac_kwh": total["hvac"],
+               "battery_kwh": total["battery_kwh"], "grid_kwh": total["grid_kwh"],
+               "peak_grid_kw": peak, "load_factor": load_factor,
+               "comfort_kh": total["comfort_kh"], "late_min": total["late_min"],
+               "distance_km": total["distance_km"], "reward": total["reward"]}
+    venv.close()
+    return PolicyScores(getattr(policy, "name", type(policy).__name__),
+                        np.column_stack([columns[k] for k in KEYS]),
+                        {k: np.array(v) for k, v in day.items()})
+
+
+@dataclass
+class ScoreSheet:
+    """Scores of several policies on the same days."""
+
+    env: str
+    seeds: list[int]
+    policies: list[PolicyScores]
+
+    def by_name(self) -> dict[str, PolicyScores]:
+        return {p.name: p for p in self.policies}
+
+    def savings(self) -> dict[str, dict[str, float]]:
+        """Per ECO feature (and all together) against the baseline: kWh/km saved, its share of
+        the single features' savings, peak grid kW lowered, HVAC kWh saved."""
+        p = self.by_name()
+        if "baseline" not in p:
+            return {}
+        base = p["baseline"]
+        out = {}
+        for name in (*FEATURES, "eco_all"):
+            if name in p:
+                out[name] = {
+                    "kwh_per_km_saved": base.mean("kwh_per_km") - p[name].mean("kwh_per_km"),
+                    "saving_pct": 100.0 * (1.0 - p[name].mean("kwh_per_km")
+                                           / base.mean("kwh_per_km")),
+                    "peak_kw_lowered": base.mean("peak_grid_kw") - p[name].mean("peak_grid_kw"),
+                    "hvac_kwh_saved": base.mean("hvac_kwh") - p[name].mean("hvac_kwh")}
+        single = sum(max(out[f]["kwh_per_km_saved"], 0.0) for f in FEATURES if f in out)
+        for f in FEATURES:
+            if f in out:
+                out[f]["share_of_saving_pct"] = (100.0 * max(out[f]["kwh_per_km_saved"], 0.0)
+                                                 / single if single > 0 else float("nan"))
+        return out
+
+    def to_dict(self) -> dict:
+        return {"env": self.env, "seeds": self.seeds,
+                "metrics": {k: {"unit": u, "meaning": w} for k, u, w in METRICS},
+                "policies": {p.name: {k: {"mean": p.mean(k), "ci95": p.ci95(k)} for k in KEYS}
+                             for p in self.policies},
+                "savings_vs_baseline": self.savings()}
+
+    def write(self, out_dir: Path) -> list[Path]:
+        """``scores.json``, ``scores_per_day.csv`` and ``day.png`` into ``out_dir``."""
+        import pandas as pd
+
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = [out_dir / "scores.json", out_dir / "scores_per_day.csv", out_dir / "day.png"]
+        written[0].write_text(json.dumps(self.to_dict(), indent=2))
+        frames = [pd.DataFrame(p.days, columns=KEYS).assign(policy=p.name, seed=self.seeds)
+                  for p in self.policies]
+        pd.concat(frames).to_csv(written[1], index=False)
+        plot_days(self, written[2])
+        return written
+
+
+def print_sheet(sheet: ScoreSheet, console) -> None:
+    """The score sheet as tables: each metric's mean +- 95 % CI per policy (columns), then
+    the savings by ECO feature."""
+    from rich.table import Table
+
+    table = Table(title=f"{sheet.env}: {len(sheet.seeds)} held-out days (seeds "
+                        f"{sheet.seeds[0]}-{sheet.seeds[-1]}), mean +- 95 % CI")
+    table.add_column("metric")
+    for p in sheet.policies:
+        table.add_column(p.name, justify="right")
+    for key, unit, _ in METRICS:
+        table.add_row(f"{key} ({unit})", *(f"{p.mean(key):.4g} +- {p.ci95(key):.2g}"
+                                           for p in sheet.policies))
+    console.print(table)
+    savings = sheet.savings()
+    if savings:
+        table = Table(title="Against the baseline, by ECO feature")
+        for column in ("feature", "kWh/km saved", "saved (%)", "share (%)",
+                       "peak lowered (kW)", "HVAC saved (kWh)"):
+            table.add_column(column, justify="right")
+        for name, s in savings.items():
+            table.add_row(name, f"{s['kwh_per_km_saved']:.4f}", f"{s['saving_pct']:.1f}",
+                          f"{s.get('share_of_saving_pct', float('nan')):.0f}",
+                          f"{s['peak_kw_lowered']:.0f}", f"{s['hvac_kwh_saved']:.1f}")
+        console.print(table)
+        console.print("share: of the saving of the single features together", style="dim")
+
+
+def plot_days(sheet: ScoreSheet, path: Path) -> None:
+    """SoC, grid load and setpoint over the first held-out day, one line per policy."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True, constrained_layout=True)
+    for p in sheet.policies:
+        t = p.day["time_h"]
+        axes[0].plot(t, 100 * p.day["soc"], label=p.name)
+        axes[1].plot(t, p.day["grid_kw"], label=p.name, lw=0.8)
+        axes[2].plot(t, p.day["setpoint_degc"], label=p.name)
+    for ax, label in zip(axes, ("SoC [%]", "grid power [kW]\n(60 s means)", "setpoint [degC]"),
+                         strict=True):
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=3)
+    axes[2].set_xlabel("hours into service")
+    axes[0].set_title(f"{sheet.env}: held-out day seed {sheet.seeds[0]}")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SEED,
+             **overrides) -> ScoreSheet:
+    """Every policy on the same ``episodes`` held-out days."""
+    seeds = [seed + i for i in range(episodes)]
+    scores = [run_days(p, config, seeds, **overrides) for p in policies]
+    names = [s.name for s in scores]
+    if len(set(names)) != len(names):
+        raise ValueError(f"Two policies have the same name: {names}.")
+    return ScoreSheet(str(config), seeds, scores)

@@ -1,0 +1,89 @@
+"""Policies and the evaluator: each ECO rule moves its metric the expected way, the score
+sheet is deterministic, PPO trains, saves and loads, the command writes its files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ebus_env.agents.evaluate import evaluate
+from ebus_env.agents.ppo import PPOConfig, PPOPolicy, load_policy, train
+from ebus_env.agents.rules import RULES, eco_setpoint_degc, rule
+
+DAY = {"service_h": 3.0}  # three trips with layovers: short, long enough for every feature
+
+
+def sheet(names, episodes=3, **overrides):
+    return evaluate([rule(n) for n in names], "sort2_day", episodes=episodes,
+                    **{**DAY, **overrides}).by_name()
+
+
+def test_eco_driving_lowers_traction_energy_per_km():
+    s = sheet(["baseline", "eco_driving"])
+    base, eco = s["baseline"], s["eco_driving"]
+    assert eco.mean("traction_kwh_per_km") < 0.92 * base.mean("traction_kwh_per_km")
+    assert eco.mean("kwh_per_km") < base.mean("kwh_per_km")
+    assert eco.mean("distance_km") < base.mean("distance_km")  # slower in the same hours
+
+
+@pytest.mark.parametrize("ambient_degc", [-5.0, 32.0])
+def test_eco_comfort_lowers_hvac_energy_in_winter_and_summer(ambient_degc):
+    s = sheet(["baseline", "eco_comfort"], ambient_mean_degc=ambient_degc)
+    assert s["eco_comfort"].mean("hvac_kwh") < 0.95 * s["baseline"].mean("hvac_kwh")
+
+
+def test_eco_charging_lowers_the_peak_grid_power_at_about_equal_energy():
+    s = sheet(["baseline", "eco_charging"])
+    base, eco = s["baseline"], s["eco_charging"]
+    assert eco.mean("peak_grid_kw") < 0.8 * base.mean("peak_grid_kw")
+    assert eco.mean("kwh_per_km") == pytest.approx(base.mean("kwh_per_km"), rel=0.03)
+
+
+def test_eco_setpoint_follows_the_rule_of_physics_md():
+    ambient = np.array([-10.0, 10.0, 18.0, 25.0, 40.0])
+    np.testing.assert_allclose(eco_setpoint_degc(ambient, np.array([1.0, 0.0, 0, 0, 0])),
+                               [19.0, 20.0, 20.0, 22.99, 27.0])
+
+
+def test_evaluator_is_deterministic_and_writes_the_sheet(tmp_path):
+    policies = [rule(n) for n in RULES]
+    a = evaluate(policies, "sort2_day", episodes=2, service_h=1.0)
+    b = evaluate(policies, "sort2_day", episodes=2, service_h=1.0)
+    for x, y in zip(a.policies, b.policies, strict=True):
+        np.testing.assert_array_equal(x.days, y.days)
+    files = a.write(tmp_path)
+    data = json.loads(files[0].read_text())
+    assert set(data["policies"]) == set(RULES) and "eco_all" in data["savings_vs_baseline"]
+    assert all(f.stat().st_size > 0 for f in files)
+
+
+def test_a_tiny_ppo_run_learns_saves_loads_and_is_evaluated(tmp_path):
+    cfg = PPOConfig.load(total_steps=256, num_envs=4, n_steps=32, batch_size=64, n_epochs=2,
+                         env_overrides={"service_h": 0.3}, checkpoint_every=64)
+    out = train(cfg, tmp_path / "run")
+    assert (out / "model.zip").exists() and (out / "vecnormalize.pkl").exists()
+    assert list((out / "checkpoints").glob("ppo_*_steps.zip"))
+    policy = load_policy(f"ppo:{out}")
+    assert isinstance(policy, PPOPolicy)
+    obs = np.zeros((3, 14), np.float32)
+    action, _ = policy.predict(obs)
+    assert action.shape == (3, 5) and np.all(np.abs(action) <= 1.0 + 1e-6)
+    scores = evaluate([policy], "sort2_day", episodes=2, service_h=0.3).policies[0]
+    assert np.isfinite(scores.mean("reward")) and scores.mean("distance_km") > 0
+
+
+def test_evaluate_command_prints_and_writes(tmp_path):
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    result = CliRunner().invoke(app, ["evaluate", "--policy", "rule:baseline", "--policy",
+                                      "rule:eco_driving", "--episodes", "2", "--set",
+                                      "service_h=0.5", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "kwh_per_km" in result.output and "eco_driving" in result.output
+    assert (tmp_path / "scores.json").exists()
+    bad = CliRunner().invoke(app, ["evaluate", "--policy", "rule:nope", "--out", str(tmp_path)])
+    assert bad.exit_code == 2 and "No rule 'nope'" in bad.output and "eco_all" in bad.output
