@@ -38,6 +38,7 @@ METRICS = (  # key, unit, what
     ("comfort_kh", "K h", "comfort violation"),
     ("late_min", "min", "delay at departures"),
     ("distance_km", "km", "distance driven"),
+    ("depleted", "1", "days ended with an empty battery (share)"),
     ("reward", "1", "episode reward"),
 )
 KEYS = [m[0] for m in METRICS]
@@ -77,6 +78,7 @@ def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
                                        "battery_kwh", "grid_kwh", "comfort_kh", "late_min",
                                        "reward")}
     peak = np.zeros(n)
+    depleted = np.zeros(n, bool)
     running = np.ones(n, bool)
     hours = venv.config.decision_s / 3600.0
     day: dict[str, list] = {"time_h": [], "soc": [], "grid_kw": [], "setpoint_degc": [],
@@ -97,6 +99,7 @@ def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
         for k, v in add.items():
             total[k] += np.where(running, v, 0.0)
         peak = np.where(running, np.maximum(peak, info["grid_kw"]), peak)
+        depleted |= running & info["depleted"]
         if running[0]:
             last = info["final_obs"][0] if "final_obs" in info and info["_final_obs"][0] else obs[0]
             day["time_h"].append(steps * hours)
@@ -114,7 +117,8 @@ def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
                "battery_kwh": total["battery_kwh"], "grid_kwh": total["grid_kwh"],
                "peak_grid_kw": peak, "load_factor": load_factor,
                "comfort_kh": total["comfort_kh"], "late_min": total["late_min"],
-               "distance_km": total["distance_km"], "reward": total["reward"]}
+               "distance_km": total["distance_km"], "depleted": depleted.astype(float),
+               "reward": total["reward"]}
     venv.close()
     return PolicyScores(getattr(policy, "name", type(policy).__name__),
                         np.column_stack([columns[k] for k in KEYS]),
@@ -128,6 +132,7 @@ class ScoreSheet:
     env: str
     seeds: list[int]
     policies: list[PolicyScores]
+    service_h: float = float("nan")
 
     def by_name(self) -> dict[str, PolicyScores]:
         return {p.name: p for p in self.policies}
@@ -237,4 +242,6 @@ def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SE
     names = [s.name for s in scores]
     if len(set(names)) != len(names):
         raise ValueError(f"Two policies have the same name: {names}.")
-    return ScoreSheet(str(config), seeds, scores)
+    from ebus_env.envs.ebus import EnvConfig
+
+    return ScoreSheet(str(config), seeds, scores, EnvConfig.load(config, **overrides).service_h)
