@@ -87,3 +87,32 @@ def test_evaluate_command_prints_and_writes(tmp_path):
     assert (tmp_path / "scores.json").exists()
     bad = CliRunner().invoke(app, ["evaluate", "--policy", "rule:nope", "--out", str(tmp_path)])
     assert bad.exit_code == 2 and "No rule 'nope'" in bad.output and "eco_all" in bad.output
+
+
+def fleet_peak(rule_name):
+    import gymnasium as gym
+
+    import ebus_env  # noqa: F401
+    from ebus_env.agents.rules import FleetChargingRule
+
+    env = gym.make("EBusFleet-v0", config="fleet_sort2",
+                   lines=[{"config": "sort2_day", "buses": 4, "service_h": 3.0}])
+    policy = FleetChargingRule.for_env(env, rule_name)
+    obs, _ = env.reset(seed=0)
+    grid = 0.0
+    while True:
+        obs, _, terminated, truncated, info = env.step(policy.predict(obs)[0])
+        grid += info["grid_kwh"]
+        if terminated or truncated:
+            return info["site_peak_kw"], grid, policy, obs
+
+
+def test_fleet_charging_rules_order_the_site_peak_and_share_by_need():
+    greedy, balanced, shaving = (fleet_peak(n) for n in ("greedy", "balanced", "peak_shaving"))
+    assert shaving[0] < 0.6 * greedy[0]  # peak shaving: a much lower site peak
+    assert balanced[0] <= greedy[0]
+    assert shaving[1] < greedy[1]  # ... bought with less charge in the same layovers
+    policy, obs = balanced[2], balanced[3].copy()
+    obs[0], obs[14] = 0.5, 0.9  # bus 0 emptier than bus 1
+    action = policy.predict(obs)[0].reshape(-1, 5)
+    assert action[0, 3] > action[1, 3]

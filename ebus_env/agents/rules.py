@@ -113,3 +113,62 @@ def rule(name: str, capacity: float = 85.0, **fields) -> RulePolicy:
     if name not in RULES:
         raise ConfigError(f"No rule '{name}'; rules: {', '.join(RULES)}.")
     return RulePolicy(name=name, capacity=capacity, **{**RULES[name], **fields})
+
+
+FLEET_RULES = ("greedy", "balanced", "peak_shaving")
+
+
+@dataclass(frozen=True)
+class FleetChargingRule:
+    """Charging rules for ``EBusFleet-v0`` (the vocabulary of charging-strategy simulators);
+    driving and comfort come from ``per_bus`` (a :class:`RulePolicy`, baseline by default).
+
+    * greedy: every plugged bus asks for its charger's full power (the site scales all
+      down together when the sum passes its limit);
+    * balanced: each plug's share of the site, ``P_site / chargers``, scaled by the bus's need
+      against the fleet's mean need, ``(1 - SoC_b) / mean(1 - SoC)``;
+    * peak_shaving: each plug gets an equal share of ``target_frac`` of the site limit,
+      except a bus below ``floor_soc``, which takes full power.
+
+    Shares go to every bus, plugged or not: a bus that plugs in during the decision then
+    charges at its share, not at full power.
+    """
+
+    name: str = "greedy"
+    n_buses: int = 1
+    charger_kw: float = 450.0
+    site_limit_kw: float = 600.0
+    chargers: int = 2
+    efficiency: float = 0.95
+    target_frac: float = 0.5
+    floor_soc: float = 0.4
+    per_bus: RulePolicy = RulePolicy()
+
+    @classmethod
+    def for_env(cls, env, name: str = "greedy", **fields) -> FleetChargingRule:
+        """This rule for a fleet env: its buses, charger rating, site limit and efficiency."""
+        u = getattr(env, "unwrapped", env)
+        line = u.lines[0]
+        return cls(name=name, n_buses=u.n, charger_kw=line.const[11] / 1e3,
+                   site_limit_kw=u.config.site_limit_kw, chargers=u.config.chargers,
+                   efficiency=float(u._efficiency[0]),
+                   per_bus=replace(RulePolicy(), capacity=line.capacity), **fields)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        obs = np.asarray(obs, dtype=np.float64)
+        buses = obs[:self.n_buses * len(OBS)].reshape(self.n_buses, len(OBS))
+        values = self.per_bus.values(buses)
+        soc = buses[:, OBS["soc"]]
+        # a plug's share of what the site can feed (charger output)
+        share = self.site_limit_kw * self.efficiency / self.chargers / self.charger_kw
+        frac = np.ones(self.n_buses)
+        if self.name == "balanced":
+            need = np.maximum(1.0 - soc, 1e-3)
+            frac = share * need / need.mean()
+        elif self.name == "peak_shaving":
+            frac = np.where(soc < self.floor_soc, 1.0, self.target_frac * share)
+        elif self.name not in FLEET_RULES:
+            raise ConfigError(f"No fleet charging rule '{self.name}'; rules: "
+                              f"{', '.join(FLEET_RULES)}.")
+        values[:, 3] = np.clip(frac, ACTIONS[3].low, ACTIONS[3].high)
+        return normalised(values).ravel(), state
