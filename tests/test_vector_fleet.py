@@ -142,7 +142,7 @@ def run_fleet(env, charge_frac=1.0, decisions=None):
 def test_fleet_site_limit_and_chargers_hold_at_every_step():
     limit_kw, chargers = 300.0, 2
     env = fleet(site_limit_kw=limit_kw, chargers=chargers)
-    eff = env.unwrapped._efficiency
+    eff = env.unwrapped.efficiency
     steps, info = run_fleet(env, decisions=300)
     bound_kw, most_plugged = 0.0, 0
     for site_kw, rows, buses_kw in steps:

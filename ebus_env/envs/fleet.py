@@ -180,7 +180,12 @@ class EBusFleetEnv(gym.Env):
                            ).astype(np.float32),
             np.concatenate([np.tile(OBS_HIGH, self.n), [o[3] for o in SITE_OBSERVATIONS]]
                            ).astype(np.float32), dtype=np.float32)
-        self._efficiency = np.concatenate([
+        self._charger_rows = [(line.rows_at[CONNECTED], line.rows_at[RATING])
+                              for line in self.lines]
+        if any(c < 0 or r < 0 for c, r in self._charger_rows):
+            raise ConfigError("A fleet's bus model needs a charger (inputs charger_connected "
+                              "and charger_rating_w).")
+        self.efficiency = np.concatenate([  # each bus's charger efficiency
             np.full(line.n, line.params[0, line.efficiency_at] if line.efficiency_at >= 0
                     else 1.0) for line in self.lines])
         self._edges = np.cumsum([0] + [line.n for line in self.lines])
@@ -235,18 +240,14 @@ class EBusFleetEnv(gym.Env):
         return self._observe(), float(reward[0]), terminated, False, info
 
     def _share_site(self) -> None:
-        lines = self.lines
-        at = [(line.rows_at[CONNECTED], line.rows_at[RATING]) for line in lines]
-        if any(c < 0 or r < 0 for c, r in at):
-            raise ConfigError("A fleet's bus model needs a charger (inputs charger_connected "
-                              "and charger_rating_w).")
+        lines, at = self.lines, self._charger_rows
         connected = np.concatenate([line.inputs[:, c, :] for line, (c, _) in zip(lines, at,
                                                                                   strict=True)])
         rating = np.concatenate([line.inputs[:, r, :] for line, (_, r) in zip(lines, at,
                                                                               strict=True)])
-        share_site(connected, rating, self._efficiency, self._plugged, self._waiting_since,
+        share_site(connected, rating, self.efficiency, self._plugged, self._waiting_since,
                    self.config.chargers, 1e3 * self.config.site_limit_kw,
-                   (self._decision) * lines[0].n_rows)
+                   self._decision * lines[0].n_rows)
         for line, (c, r), lo, hi in zip(lines, at, self._edges[:-1], self._edges[1:],
                                         strict=True):
             line.inputs[:, c, :] = connected[lo:hi]

@@ -86,7 +86,8 @@ class EBusVectorEnv(VectorEnv):
         info = self._info(values, costs, depleted)
         obs = buses.obs.copy()
         if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
-            restarted = np.flatnonzero(self._ended)
+            was_ended = self._ended
+            restarted = np.flatnonzero(was_ended)
             for b in restarted:  # the ended episodes start again; their actions are ignored
                 self._restart(b)
                 obs[b] = buses.obs[b]
@@ -94,8 +95,7 @@ class EBusVectorEnv(VectorEnv):
             terminated[restarted] = truncated[restarted] = False
             self._ended = terminated | truncated
             if len(restarted):  # their figures are of the ignored step: masked out
-                valid = ~np.isin(np.arange(self.num_envs), restarted)
-                info.update({f"_{k}": valid for k in list(info)})
+                info.update({f"_{k}": ~was_ended for k in list(info)})
         else:
             ended = np.flatnonzero(terminated | truncated)
             if len(ended):
