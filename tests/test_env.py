@@ -182,3 +182,44 @@ def test_rgb_render_shows_the_day_so_far():
     image = env.render()
     assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
     assert image.std() > 10  # not blank
+
+
+def test_an_empty_battery_ends_the_day_and_charges_the_service_lost():
+    """Without charging, a bus starting at 12 % SoC reaches the pack's floor within the day:
+    the episode ends there and the reward charges every service hour left."""
+    env = gym.make("EBus-v0", soc_start_pct=12.0, charge_at_terminal=False).unwrapped
+    env.reset(seed=0)
+    floor = env.model.params[env.model.param_names.index("rint_battery.soc_min_frac")]
+    terminated, steps = False, 0
+    while not terminated:
+        obs, reward, terminated, _, info = env.step(action())
+        steps += 1
+    hours_left = env.config.service_h - steps * env.config.decision_s / 3600.0
+    assert info["depleted"] and hours_left > 1.0
+    assert obs[env.observation_names.index("soc")] <= floor + 1e-9
+    assert info["service_lost_h"] == pytest.approx(hours_left)
+    weight = env.reward_fn.lost_service_per_hour
+    assert info["reward_terms"]["lost_service"] == pytest.approx(weight * hours_left)
+    assert reward <= -weight * hours_left
+
+
+def test_observations_hold_the_peak_so_far_and_the_layover_left():
+    env = gym.make("EBus-v0", service_h=3.0).unwrapped
+    obs, _ = env.reset(seed=0)
+    names = env.observation_names
+    peak, left, plugged = (names.index(n) for n in ("peak_grid_kw", "layover_left_min",
+                                                     "charger_connected"))
+    seen_peak, lefts = 0.0, []
+    for _ in range(180):
+        obs, _, terminated, _, info = env.step(action())
+        seen_peak = max(seen_peak, info["grid_kw"])
+        assert obs[peak] == pytest.approx(seen_peak, rel=1e-5)
+        lefts.append(obs[left] if obs[plugged] else None)
+        assert obs[plugged] or obs[left] == 0.0
+        if terminated:
+            break
+    on = [x for x in lefts if x is not None]
+    assert on and max(on) <= env.config.layover_min + 1e-6
+    # counts down by one decision per step on a layover
+    runs = [(a, b) for a, b in zip(lefts, lefts[1:], strict=False) if a is not None and b is not None]
+    assert runs and all(a - b == pytest.approx(1.0, abs=1e-6) for a, b in runs)

@@ -50,6 +50,8 @@ OBSERVATIONS = (  # name, unit, low, high
     ("service_left_h", "h", 0.0, 24.0),
     ("comfort_low_degc", "degC", -40.0, 60.0),
     ("comfort_high_degc", "degC", -40.0, 60.0),
+    ("peak_grid_kw", "kW", 0.0, 5000.0),
+    ("layover_left_min", "min", 0.0, 600.0),
 )
 OBS_LOW = np.array([o[2] for o in OBSERVATIONS], np.float32)
 OBS_HIGH = np.array([o[3] for o in OBSERVATIONS], np.float32)
@@ -61,15 +63,15 @@ BOOK = ("ambient_mean_degc", "passengers_base_frac", "passengers_peak_frac", "ca
  CABIN_BEFORE, DISTANCE_BEFORE, LAP_BEFORE) = range(len(BOOK))
 OUT = ("battery_kwh", "grid_kwh", "grid_kw", "peak_grid_kw", "peak_grid_kw_in_step",
        "battery_shortfall_kwh", "schedule_delay_min", "distance_km", "comfort_low_degc",
-       "comfort_high_degc", "ambient_degc", "passengers")
+       "comfort_high_degc", "ambient_degc", "passengers", "empty")
 _OUT = {name: i for i, name in enumerate(OUT)}
 
 # constants of a batch, in one array for the compiled passes
 CONST = ("start_time_h", "decision_s", "service_h", "ambient_amplitude_k", "reserve_soc_pct",
          "charge_at_terminal", "lap_period_s", "layover_min_s", "jerk_mps3", "decel_mps2",
-         "dt_s", "charger_w", "length_m", "step_m")
+         "dt_s", "charger_w", "length_m", "step_m", "soc_min")
 (C_START, C_DECISION, C_SERVICE, C_AMPLITUDE, C_RESERVE, C_CHARGE, C_PERIOD, C_LAYOVER,
- C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP) = range(len(CONST))
+ C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP, C_SOC_MIN) = range(len(CONST))
 # indices into the model's arrays (-1: the model has no such input/parameter/state)
 AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc", "s_speed",
       "s_cabin", "s_distance", "a_motor", "a_charger", "a_shortfall", "a_ohmic",
@@ -157,7 +159,8 @@ def _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
               0.0 if on_layover else (const[C_LENGTH] - r[reference.S]) / 1e3,
               delay_s / 60.0, 1.0 if on_layover and const[C_CHARGE] > 0.0 else 0.0,
               3.6 * speed[i], 100.0 * grade[i],
-              max(const[C_SERVICE] - bk[DECISION] * const[C_DECISION] / 3600.0, 0.0), low, high)
+              max(const[C_SERVICE] - bk[DECISION] * const[C_DECISION] / 3600.0, 0.0), low, high,
+              bk[PEAK_KW], r[reference.TIMER] / 60.0 if on_layover else 0.0)
     for k in range(len(values)):
         v = values[k]
         if not math.isfinite(v):
@@ -196,7 +199,10 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
             new = max(ref[b, reference.DEP_DELAY], 0.0)
             late_min = max(new - bk[DEP_DELAY], 0.0) / 60.0
             bk[DEP_DELAY] = new
-        deficit = max(const[C_RESERVE] - 100.0 * states[b, at[S_SOC]], 0.0) * hours
+        soc = states[b, at[S_SOC]]
+        deficit = max(const[C_RESERVE] - 100.0 * soc, 0.0) * hours
+        # an empty pack (at its SoC floor, or short of power) ends the bus's service early
+        empty = a[at[A_SHORTFALL]] > 0.0 or soc <= const[C_SOC_MIN]
         q = quantities[b]
         q[0] = chemical_j / J_PER_KWH
         q[1] = grid_kwh
@@ -205,6 +211,8 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         q[4] = late_min
         q[5] = deficit
         bk[DECISION] += 1.0
+        left_h = max(const[C_SERVICE] - bk[DECISION] * const[C_DECISION] / 3600.0, 0.0)
+        q[6] = left_h if empty else 0.0
         delay_s = _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
                            obs)
         o = out[b]
@@ -220,6 +228,7 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         o[9] = high
         o[10] = ambient
         o[11] = people
+        o[12] = 1.0 if empty else 0.0
 
 
 def course_of(cfg) -> Course:
@@ -271,6 +280,8 @@ class BusBatch:
         self._capacity_at = index(m.param_names, capacity)
         self.power_at = index(m.param_names, "grid_charger.power_kw")
         self.efficiency_at = index(m.param_names, "grid_charger.efficiency")
+        soc_min_at = next((m.param_names.index(p) for p in m.param_names
+                           if p.endswith(".soc_min_frac")), -1)
         acc = m.accumulator_names
         self.at = np.array([
             index(m.input_names, "ambient_degc"), index(m.input_names, "passenger_count"),
@@ -290,7 +301,8 @@ class BusBatch:
                          cfg.ambient_amplitude_k, cfg.reserve_soc_pct,
                          1.0 if cfg.charge_at_terminal else 0.0, self.lap_period_s,
                          60.0 * cfg.min_layover_min, cfg.jerk_mps3, cfg.comfort_decel_mps2,
-                         cfg.dt_s, 1e3 * charger_kw, c.length_m, c.step_m)
+                         cfg.dt_s, 1e3 * charger_kw, c.length_m, c.step_m,
+                         m.params[soc_min_at] if soc_min_at >= 0 else 0.0)
         self._row_h = np.arange(self.n_rows) * cfg.dt_s / 3600.0
         n_in = len(m.input_names)
         self.params = np.repeat(m.params[None, :], n, axis=0)
@@ -384,8 +396,8 @@ class BusBatch:
         return self.book[:, DECISION]
 
     def ended(self) -> tuple[np.ndarray, np.ndarray]:
-        """(depleted, end of service) per bus, after a decision."""
-        return (self.out[:, _OUT["battery_shortfall_kwh"]] > 0.0,
+        """(battery empty, end of service) per bus, after a decision."""
+        return (self.out[:, _OUT["empty"]] > 0.0,
                 self.book[:, DECISION] >= self.max_decisions)
 
     def column(self, name: str) -> np.ndarray:

@@ -15,7 +15,7 @@ from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
 from ebus_env.errors import ConfigError
 
 CONFIG_DIR = ROOT / "configs" / "env"
-SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h")  # in info, with OUT
+SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h", "service_lost_h")  # in info, with OUT
 
 
 @dataclass(frozen=True)
@@ -172,11 +172,14 @@ class EBusEnv(gym.Env):
     | 10 | road grade here | % |
     | 11 | service left | h |
     | 12, 13 | comfort band, low and high | degC |
+    | 14 | the day's peak grid power so far (60 s means; what the peak term charges) | kW |
+    | 15 | layover left before the timetable's departure (0 while driving) | min |
 
     ## Rewards
     ``-(cost)`` of :class:`ebus_env.envs.reward.Reward`: battery energy [kWh], grid energy
     [kWh], rise of the peak grid power [kW], comfort violation [K h], delay at departures
-    [min], SoC below the reserve [%-points h], each with a documented weight. ``info`` holds
+    [min], SoC below the reserve [%-points h], service lost to an empty battery [h], each
+    with a documented weight. ``info`` holds
     each term, the step's energy breakdown [kWh] and the grid power [kW].
 
     ## Starting State
@@ -185,8 +188,9 @@ class EBusEnv(gym.Env):
     seed.
 
     ## Episode End
-    Terminated at the end of service (``service_h``) or when the battery is empty (its SoC
-    floor reached with demand unmet). Truncation: ``gymnasium.make`` adds a TimeLimit of
+    Terminated at the end of service (``service_h``) or when the battery is empty (SoC at the
+    pack's floor ``soc_min_frac``, or a demand it cannot deliver): the service hours left are
+    charged as lost service. Truncation: ``gymnasium.make`` adds a TimeLimit of
     2000 decisions (``max_episode_steps``; a 24 h day of 60 s decisions fits).
 
     ## Arguments
@@ -201,7 +205,8 @@ class EBusEnv(gym.Env):
     stable-baselines3.
 
     ## Version History
-    * v0: first version.
+    * v0: first version (the peak so far, the layover left and the lost-service term were
+      added before the first release).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 4}

@@ -131,7 +131,7 @@ class EBusFleetEnv(gym.Env):
     names in ``env.action_names``.
 
     ## Observation Space
-    ``Box(float32, (14 n + 4,))``: each bus's 14 ``EBus-v0`` observations in turn (charger
+    ``Box(float32, (16 n + 4,))``: each bus's 16 ``EBus-v0`` observations in turn (charger
     connected: holding a plug), then the site's grid power over the last decision [kW], its
     peak so far [kW], free chargers and buses waiting for one; names in
     ``env.observation_names``.

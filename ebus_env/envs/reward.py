@@ -8,9 +8,10 @@ import numba
 import numpy as np
 
 QUANTITIES = ("battery_kwh", "grid_kwh", "peak_rise_kw", "comfort_kh", "late_min",
-              "reserve_pct_h")
+              "reserve_pct_h", "service_lost_h")
 """What a decision is scored on, per bus (columns of the quantities the envs pass)."""
-TERMS = ("battery_energy", "grid_energy", "peak_power", "comfort", "delay", "reserve")
+TERMS = ("battery_energy", "grid_energy", "peak_power", "comfort", "delay", "reserve",
+         "lost_service")
 
 
 @dataclass(frozen=True)
@@ -18,7 +19,7 @@ class Reward:
     """Negative cost of one decision interval::
 
         r = -( w_battery E_battery + w_grid E_grid + w_peak dP_peak + w_comfort D_comfort
-               + w_delay T_late + w_reserve R )
+               + w_delay T_late + w_reserve R + w_lost H_lost )
 
     E_battery  net energy out of the battery's chemical store [kWh]
     E_grid     energy drawn from the grid by the charger [kWh]
@@ -27,10 +28,14 @@ class Reward:
     D_comfort  cabin temperature outside the comfort band, integrated [K h]
     T_late     delay added at departures from the terminal beyond the layover slack [min]
     R          SoC below the reserve, integrated [%-points h]
+    H_lost     service hours left when the battery runs empty (the episode ends there) [h]
 
     Defaults price energy at 1 per kWh, the peak like a monthly demand charge spread over a
     month's days (0.5 per kW), and comfort, delay and reserve high enough that the policy
-    does not buy energy with them. Another reward: subclass and override :meth:`costs`.
+    does not buy energy with them. Lost service is priced like a replacement bus and driver
+    (about 100 EUR/h at 0.25 EUR/kWh: 400 per hour), so that running the pack empty never
+    pays, even though it ends the episode and with it the costs of the rest of the day.
+    Another reward: subclass and override :meth:`costs`.
     """
 
     battery_per_kwh: float = 1.0
@@ -39,19 +44,21 @@ class Reward:
     comfort_per_kelvin_hour: float = 2.0
     delay_per_min: float = 0.5
     reserve_per_pct_hour: float = 5.0
+    lost_service_per_hour: float = 400.0
     weights: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "weights", np.array(
             [self.battery_per_kwh, self.grid_per_kwh, self.peak_per_kw,
-             self.comfort_per_kelvin_hour, self.delay_per_min, self.reserve_per_pct_hour]))
+             self.comfort_per_kelvin_hour, self.delay_per_min, self.reserve_per_pct_hour,
+             self.lost_service_per_hour]))
 
     def costs(self, quantities: np.ndarray) -> np.ndarray:
-        """(n, 6) quantities (columns ``QUANTITIES``) -> (n, 6) costs (columns ``TERMS``)."""
+        """(n, 7) quantities (columns ``QUANTITIES``) -> (n, 7) costs (columns ``TERMS``)."""
         return quantities * self.weights
 
     def __call__(self, quantities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rewards (n,) and costs (n, 6) of n buses' decisions."""
+        """Rewards (n,) and costs (n, 7) of n buses' decisions."""
         costs = self.costs(quantities)
         return -costs.sum(axis=1), costs
 
