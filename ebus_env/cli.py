@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -477,8 +478,8 @@ def effects(
 @app.command()
 def evaluate(
     policy: Annotated[list[str], typer.Option(
-        help="rule:NAME (baseline, eco_driving, eco_comfort, eco_charging, eco_all) or "
-             "ppo:PATH (repeatable)")],
+        help="rule:NAME (baseline, eco_driving, eco_comfort, eco_charging, eco_all), "
+             "ppo:PATH or ppo:default (the shipped agent); repeatable")],
     env: Annotated[str, typer.Option(help="Env config: name in configs/env or a YAML path")]
     = "sort2_day",
     episodes: Annotated[int, typer.Option(help="Held-out days (seeds 10000, 10001, ...)")] = 20,
@@ -536,10 +537,10 @@ def train(
 
         overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed)) if v is not None}
         cfg = PPOConfig.load(config, **overrides)
-        t0 = time.perf_counter()
         path = run(cfg, out, progress=False)
-        _console().print(f"[bold green]agent ->[/] {path / 'model.zip'} ({cfg.total_steps:,} "
-                         f"steps in {time.perf_counter() - t0:.0f} s)")
+        done = json.loads((path / "training.json").read_text())
+        _console().print(f"[bold green]agent ->[/] {path / 'model.zip'} ({done['steps']:,} "
+                         f"steps in {done['wall_s']:.0f} s)")
 
     _run(body)
 

@@ -11,6 +11,7 @@ import pytest
 from ebus_env.agents.evaluate import evaluate
 from ebus_env.agents.ppo import PPOConfig, PPOPolicy, load_policy, train
 from ebus_env.agents.rules import RULES, eco_setpoint_degc, rule
+from ebus_env.envs.batch import OBSERVATIONS
 
 DAY = {"service_h": 3.0}  # three trips with layovers: short, long enough for every feature
 
@@ -67,11 +68,44 @@ def test_a_tiny_ppo_run_learns_saves_loads_and_is_evaluated(tmp_path):
     assert list((out / "checkpoints").glob("ppo_*_steps.zip"))
     policy = load_policy(f"ppo:{out}")
     assert isinstance(policy, PPOPolicy)
-    obs = np.zeros((3, 14), np.float32)
+    obs = np.zeros((3, len(OBSERVATIONS)), np.float32)
     action, _ = policy.predict(obs)
     assert action.shape == (3, 5) and np.all(np.abs(action) <= 1.0 + 1e-6)
     scores = evaluate([policy], "sort2_day", episodes=2, service_h=0.3).policies[0]
     assert np.isfinite(scores.mean("reward")) and scores.mean("distance_km") > 0
+
+
+def test_training_stops_at_its_time_limit_and_records_what_it_did(tmp_path):
+    cfg = PPOConfig.load(total_steps=1_000_000, num_envs=4, n_steps=32, batch_size=64,
+                         n_epochs=1, env_overrides={"service_h": 0.3}, time_limit_min=0.02)
+    out = train(cfg, tmp_path / "run")
+    done = json.loads((out / "training.json").read_text())
+    assert 0 < done["steps"] < cfg.total_steps and done["wall_s"] < 30
+    assert (out / "model.zip").exists()
+
+
+def test_the_shipped_agent_still_beats_the_best_rule_on_held_out_days():
+    """ppo:default against every rule on 4 held-out days of its env (a full day each): the
+    paired reward difference to the best rule is positive beyond its 95 % CI. Fails when a
+    change to the env or the reward leaves the shipped agent stale (retrain it)."""
+    sheet = evaluate([rule(n) for n in RULES] + [load_policy("ppo:default")], "sort2_day",
+                     episodes=4)
+    (name, versus), = sheet.versus_best_rule().items()
+    assert name == "ppo:default" and versus["versus"] in RULES
+    gain, ci = versus["reward"]
+    assert gain - ci > 0.0
+    assert versus["peak_grid_kw"][0] < 0.0 and versus["depleted"][0] == 0.0
+
+
+def test_paired_difference_cancels_what_the_days_share():
+    from ebus_env.agents.evaluate import KEYS, PolicyScores, paired_difference
+
+    day = np.linspace(-50.0, 50.0, 6)[:, None] * np.ones((1, len(KEYS)))  # large day effect
+    a = PolicyScores("a", day + 1.0 + 0.1 * np.array([1, -1, 1, -1, 1, -1])[:, None])
+    b = PolicyScores("b", day)
+    mean, ci = paired_difference(a, b, "reward")
+    assert mean == pytest.approx(1.0) and 0.0 < ci < 0.2
+    assert a.ci95("reward") > 10.0  # unpaired, the day effect would swamp the difference
 
 
 def test_evaluate_command_prints_and_writes(tmp_path):
@@ -113,6 +147,6 @@ def test_fleet_charging_rules_order_the_site_peak_and_share_by_need():
     assert balanced[0] <= greedy[0]
     assert shaving[1] < greedy[1]  # ... bought with less charge in the same layovers
     policy, obs = balanced[2], balanced[3].copy()
-    obs[0], obs[14] = 0.5, 0.9  # bus 0 emptier than bus 1
+    obs[0], obs[len(OBSERVATIONS)] = 0.5, 0.9  # bus 0 emptier than bus 1
     action = policy.predict(obs)[0].reshape(-1, 5)
     assert action[0, 3] > action[1, 3]

@@ -66,6 +66,16 @@ class PolicyScores:
         return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
 
 
+def paired_difference(a: PolicyScores, b: PolicyScores, key: str) -> tuple[float, float]:
+    """Mean of ``a - b`` over the same days and the half-width of its 95 % CI (paired t):
+    day-to-day variation common to both policies cancels."""
+    d = a.days[:, KEYS.index(key)] - b.days[:, KEYS.index(key)]
+    d = d[np.isfinite(d)]
+    if len(d) < 2:
+        return float(np.mean(d)) if len(d) else float("nan"), float("nan")
+    return float(d.mean()), float(stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+
+
 def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
     """Drive the days ``seeds`` with ``policy`` (``predict(obs)``), all at once."""
     venv = EBusVectorEnv(num_envs=len(seeds), config=config,
@@ -160,12 +170,33 @@ class ScoreSheet:
                                                  / single if single > 0 else float("nan"))
         return out
 
+    def best_rule(self) -> PolicyScores | None:
+        """The rule-based policy with the highest mean reward (None without rules)."""
+        from ebus_env.agents.rules import RULES
+
+        rules = [p for p in self.policies if p.name in RULES]
+        return max(rules, key=lambda p: p.mean("reward")) if rules else None
+
+    def versus_best_rule(self) -> dict[str, dict[str, tuple[float, float]]]:
+        """Each other (learned) policy minus the best rule on the same days: (mean, 95 % CI
+        half-width) of the paired difference, per metric (reward: > 0 is better)."""
+        best = self.best_rule()
+        if best is None:
+            return {}
+        from ebus_env.agents.rules import RULES
+
+        return {p.name: {"versus": best.name, **{k: paired_difference(p, best, k) for k in KEYS}}
+                for p in self.policies if p.name not in RULES}
+
     def to_dict(self) -> dict:
+        versus = {name: {"versus": d.pop("versus"), **{k: {"mean": m, "ci95": c}
+                                                      for k, (m, c) in d.items()}}
+                  for name, d in self.versus_best_rule().items()}
         return {"env": self.env, "seeds": self.seeds,
                 "metrics": {k: {"unit": u, "meaning": w} for k, u, w in METRICS},
                 "policies": {p.name: {k: {"mean": p.mean(k), "ci95": p.ci95(k)} for k in KEYS}
                              for p in self.policies},
-                "savings_vs_baseline": self.savings()}
+                "savings_vs_baseline": self.savings(), "versus_best_rule": versus}
 
     def write(self, out_dir: Path) -> list[Path]:
         """``scores.json``, ``scores_per_day.csv`` and ``day.png`` into ``out_dir``."""
@@ -208,6 +239,16 @@ def print_sheet(sheet: ScoreSheet, console) -> None:
                           f"{s['peak_kw_lowered']:.0f}", f"{s['hvac_kwh_saved']:.1f}")
         console.print(table)
         console.print("share: of the saving of the single features together", style="dim")
+    versus = sheet.versus_best_rule()
+    if versus:
+        table = Table(title="Learned policies minus the best rule, same days (paired 95 % CI)")
+        table.add_column("metric")
+        for name, d in versus.items():
+            table.add_column(f"{name} - {d['versus']}", justify="right")
+        for key, unit, _ in METRICS:
+            table.add_row(f"{key} ({unit})", *(f"{d[key][0]:+.4g} +- {d[key][1]:.2g}"
+                                               for d in versus.values()))
+        console.print(table)
 
 
 def plot_days(sheet: ScoreSheet, path: Path) -> None:

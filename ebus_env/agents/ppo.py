@@ -19,6 +19,9 @@ from ebus_env.config import ROOT
 from ebus_env.envs.ebus import config_keys
 from ebus_env.errors import ConfigError
 
+DEFAULT_AGENT = ROOT / "trained" / "ppo_sort2_day"
+"""The shipped agent (``ppo:default``): PPO trained on ``sort2_day`` (see its README)."""
+
 
 @dataclass(frozen=True)
 class PPOConfig:
@@ -35,8 +38,10 @@ class PPOConfig:
     gae_lambda: float = 0.95
     ent_coef: float = 0.0
     net_arch: tuple = (64, 64)
+    log_std_init: float = 0.0  # initial log std of the Gaussian policy (actions span [-1, 1])
     normalize: bool = True
     checkpoint_every: int = 100_000
+    time_limit_min: float | None = None  # stop (and save) after this much wall-clock time
 
     @classmethod
     def load(cls, source: str | Path | None = "ppo", **overrides) -> PPOConfig:
@@ -54,9 +59,29 @@ def _venv(cfg: PPOConfig, num_envs: int):
     return VecMonitor(SB3VecEnv(num_envs=num_envs, config=cfg.env, **cfg.env_overrides))
 
 
+def _time_limit(minutes: float):
+    """A callback that ends training after ``minutes`` of wall-clock time."""
+    import time
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class TimeLimit(BaseCallback):
+        def _on_training_start(self):
+            self.deadline = time.perf_counter() + 60.0 * minutes
+
+        def _on_step(self) -> bool:
+            return time.perf_counter() < self.deadline
+
+    return TimeLimit()
+
+
 def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
-    """Train PPO as configured; returns ``out_dir`` holding the agent."""
+    """Train PPO as configured; returns ``out_dir`` holding the agent and ``training.json``
+    (steps done, wall time, machine)."""
     import importlib.util
+    import os
+    import platform
+    import time
 
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CheckpointCallback
@@ -73,16 +98,24 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
     model = PPO("MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
                 n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
                 gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef, seed=cfg.seed,
-                policy_kwargs={"net_arch": list(cfg.net_arch)}, tensorboard_log=tensorboard,
-                device="cpu", verbose=0)
-    checkpoints = CheckpointCallback(max(cfg.checkpoint_every // cfg.num_envs, 1),
-                                     str(out / "checkpoints"), name_prefix="ppo",
-                                     save_vecnormalize=cfg.normalize)
-    model.learn(cfg.total_steps, callback=checkpoints, progress_bar=progress)
+                policy_kwargs={"net_arch": list(cfg.net_arch), "log_std_init": cfg.log_std_init},
+                tensorboard_log=tensorboard, device="cpu", verbose=0)
+    callbacks = [CheckpointCallback(max(cfg.checkpoint_every // cfg.num_envs, 1),
+                                    str(out / "checkpoints"), name_prefix="ppo",
+                                    save_vecnormalize=cfg.normalize)]
+    if cfg.time_limit_min:
+        callbacks.append(_time_limit(cfg.time_limit_min))
+    t0 = time.perf_counter()
+    model.learn(cfg.total_steps, callback=callbacks, progress_bar=progress)
+    wall_s = time.perf_counter() - t0
     model.save(out / "model.zip")
     if cfg.normalize:
         venv.save(str(out / "vecnormalize.pkl"))
     venv.close()
+    (out / "training.json").write_text(json.dumps({
+        "steps": int(model.num_timesteps), "wall_s": round(wall_s, 1),
+        "steps_per_s": round(model.num_timesteps / wall_s), "cpus": os.cpu_count(),
+        "machine": platform.processor() or platform.machine()}, indent=2))
     return out
 
 
@@ -99,9 +132,13 @@ class PPOPolicy:
         if not model_file.exists():
             raise ConfigError(f"No trained agent at {model_file} (ebus train writes one).")
         self.model = PPO.load(model_file, device="cpu")
-        self.name = name or f"ppo:{folder.name}"
+        label = folder.name if model_file.stem == "model" else f"{folder.name}/{model_file.stem}"
+        self.name = name or f"ppo:{label}"
         self._norm = None
         stats = folder / "vecnormalize.pkl"
+        if model_file.stem.startswith("ppo_") and model_file.stem.endswith("_steps"):
+            stats = folder / model_file.name.replace("ppo_", "ppo_vecnormalize_").replace(
+                ".zip", ".pkl")  # a checkpoint: the statistics saved with it
         if stats.exists():
             import pickle
 
@@ -116,13 +153,14 @@ class PPOPolicy:
 
 
 def load_policy(spec: str):
-    """``rule:NAME`` (``ebus_env.agents.rules.RULES``) or ``ppo:PATH``."""
+    """``rule:NAME`` (``ebus_env.agents.rules.RULES``), ``ppo:PATH`` (a training folder or a
+    checkpoint's zip) or ``ppo:default`` (the shipped agent)."""
     from ebus_env.agents.rules import rule
 
     kind, _, arg = spec.partition(":")
     if kind == "rule":
         return rule(arg)
     if kind == "ppo":
-        return PPOPolicy(arg)
+        return PPOPolicy(DEFAULT_AGENT, "ppo:default") if arg == "default" else PPOPolicy(arg)
     raise ConfigError(f"Policy '{spec}': use rule:NAME (baseline, eco_driving, eco_comfort, "
-                      "eco_charging, eco_all) or ppo:PATH.")
+                      "eco_charging, eco_all), ppo:PATH or ppo:default.")

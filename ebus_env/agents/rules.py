@@ -68,7 +68,7 @@ class RulePolicy:
     charge_power_frac: float = 1.0
 
     def values(self, obs: np.ndarray) -> np.ndarray:
-        """Actions in physical units (n, 5) for observations (n, 14)."""
+        """Actions in physical units (n, 5) for observations (n, 16)."""
         n = obs.shape[0]
         out = np.empty((n, N_ACT))
         out[:, 0] = self.speed_cap_kmh if self.eco_driving else 80.0
@@ -93,7 +93,7 @@ class RulePolicy:
         return replace(self, capacity=buses.capacity)
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
-        """Actions for one observation (14,) or a batch (n, 14), as stable-baselines3's."""
+        """Actions for one observation (16,) or a batch (n, 16), as stable-baselines3's."""
         obs = np.asarray(obs, dtype=np.float64)
         actions = normalised(self.values(np.atleast_2d(obs)))
         return (actions[0] if obs.ndim == 1 else actions), state
