@@ -1,7 +1,7 @@
-"""ECO rules on held-out days (issue 6): the README's table of kWh/km savings and peak grid
-power, generated. Prints a Markdown table; no assertions.
+"""ECO rules and the shipped PPO agent on held-out days (issue 6): the README's tables,
+generated. Prints Markdown tables; no assertions.
 
-    python benchmarks/bench_agents.py            # 8 days per case
+    python benchmarks/bench_agents.py            # 8 days per case, 20 for PPO vs the rules
     python benchmarks/bench_agents.py --smoke    # CI: 2 short days
 """
 
@@ -15,7 +15,29 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ebus_env.agents.evaluate import FEATURES, evaluate  # noqa: E402
+from ebus_env.agents.ppo import load_policy  # noqa: E402
 from ebus_env.agents.rules import RULES, rule  # noqa: E402
+
+SHOWN = ("reward", "kwh_per_km", "battery_kwh", "grid_kwh", "peak_grid_kw", "hvac_kwh",
+         "comfort_kh", "late_min")
+
+
+def ppo_versus_rules(episodes: int, extra: dict) -> None:
+    """The shipped agent and every rule on the same held-out days of its training env."""
+    t0 = time.perf_counter()
+    sheet = evaluate([rule(n) for n in RULES] + [load_policy("ppo:default")], "sort2_day",
+                     episodes=episodes, **extra)
+    print(f"\nPPO (ppo:default) and the rules on sort2_day, {episodes} held-out days, "
+          "mean +- 95 % CI\n")
+    print("| policy | " + " | ".join(SHOWN) + " |")
+    print("|---|" + "---|" * len(SHOWN))
+    for p in sheet.policies:
+        print(f"| {p.name} | " + " | ".join(f"{p.mean(k):.4g} +- {p.ci95(k):.2g}" for k in SHOWN)
+              + " |")
+    for name, d in sheet.versus_best_rule().items():
+        print(f"| {name} - {d['versus']} (paired) | "
+              + " | ".join(f"{d[k][0]:+.4g} +- {d[k][1]:.2g}" for k in SHOWN) + " |")
+    print(f"({time.perf_counter() - t0:.0f} s)")
 
 
 def main() -> None:
@@ -50,6 +72,7 @@ def main() -> None:
               f"-> {p['eco_charging'].mean('peak_grid_kw'):.0f} |"
               + (f" days with an empty battery: {', '.join(empty)}" if empty else "")
               + f"  ({time.perf_counter() - t0:.0f} s)")
+    ppo_versus_rules(2 if args.smoke else 20, extra)
 
 
 if __name__ == "__main__":
