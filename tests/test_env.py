@@ -12,7 +12,7 @@ import pytest
 import ebus_env  # noqa: F401  (registers the environments)
 from ebus_env.envs import reference
 from ebus_env.envs.course import course_from_cycle
-from ebus_env.envs.ebus import ACTIONS
+from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR
 from ebus_env.profile import Profile
 
 
@@ -223,3 +223,22 @@ def test_observations_hold_the_peak_so_far_and_the_layover_left():
     # counts down by one decision per step on a layover
     runs = [(a, b) for a, b in zip(lefts, lefts[1:], strict=False) if a is not None and b is not None]
     assert runs and all(a - b == pytest.approx(1.0, abs=1e-6) for a, b in runs)
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")
+                                        if not p.stem.startswith("fleet")))
+def test_every_shipped_env_config_runs_with_its_climate(name):
+    """Each configs/env file builds EBus-v0; the ambient spans mean -+ amplitude over the day."""
+    env = gym.make("EBus-v0", config=name, ambient_random_k=0.0).unwrapped
+    cfg = env.config
+    obs, _ = env.reset(seed=0)
+    ambient = env.observation_names.index("ambient_degc")
+    seen = [obs[ambient]]
+    for _ in range(int(cfg.service_h * 60)):
+        obs, _, terminated, _, _ = env.step(action())
+        seen.append(obs[ambient])
+        if terminated:
+            break
+    assert min(seen) >= cfg.ambient_mean_degc - cfg.ambient_amplitude_k - 1e-4
+    assert max(seen) <= cfg.ambient_mean_degc + cfg.ambient_amplitude_k + 1e-4
+    assert max(seen) - min(seen) > cfg.ambient_amplitude_k  # a day's swing, not a constant
