@@ -24,6 +24,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from scipy import stats
 
+from ebus_env.agents.rules import RULES
 from ebus_env.envs.vector import EBusVectorEnv
 
 HELD_OUT_SEED = 10_000
@@ -59,21 +60,23 @@ class PolicyScores:
 
     def ci95(self, key: str) -> float:
         """Half-width of the 95 % confidence interval of the mean (Student t)."""
-        x = self.days[:, KEYS.index(key)]
-        x = x[np.isfinite(x)]
-        if len(x) < 2:
-            return float("nan")
-        return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+        return ci95_half_width(self.days[:, KEYS.index(key)])
+
+
+def ci95_half_width(x: np.ndarray) -> float:
+    """Half-width of the 95 % CI of the mean of the finite values of ``x`` (Student t)."""
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return float("nan")
+    return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
 
 
 def paired_difference(a: PolicyScores, b: PolicyScores, key: str) -> tuple[float, float]:
     """Mean of ``a - b`` over the same days and the half-width of its 95 % CI (paired t):
     day-to-day variation common to both policies cancels."""
     d = a.days[:, KEYS.index(key)] - b.days[:, KEYS.index(key)]
-    d = d[np.isfinite(d)]
-    if len(d) < 2:
-        return float(np.mean(d)) if len(d) else float("nan"), float("nan")
-    return float(d.mean()), float(stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+    finite = d[np.isfinite(d)]
+    return (float(finite.mean()) if len(finite) else float("nan")), ci95_half_width(d)
 
 
 def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
@@ -172,8 +175,6 @@ class ScoreSheet:
 
     def best_rule(self) -> PolicyScores | None:
         """The rule-based policy with the highest mean reward (None without rules)."""
-        from ebus_env.agents.rules import RULES
-
         rules = [p for p in self.policies if p.name in RULES]
         return max(rules, key=lambda p: p.mean("reward")) if rules else None
 
@@ -183,8 +184,6 @@ class ScoreSheet:
         best = self.best_rule()
         if best is None:
             return {}
-        from ebus_env.agents.rules import RULES
-
         return {p.name: {"versus": best.name, **{k: paired_difference(p, best, k) for k in KEYS}}
                 for p in self.policies if p.name not in RULES}
 

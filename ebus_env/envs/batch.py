@@ -113,6 +113,11 @@ def _hour(book_b, const):
     return (const[C_START] + book_b[DECISION] * const[C_DECISION] / 3600.0) % 24.0
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _service_left_h(book_b, const):
+    return max(const[C_SERVICE] - book_b[DECISION] * const[C_DECISION] / 3600.0, 0.0)
+
+
 @numba.njit(cache=True, nogil=True)
 def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h, speed, grade,
             stop_m, dwell_s, rows_at, n_rows):
@@ -159,8 +164,8 @@ def _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
               0.0 if on_layover else (const[C_LENGTH] - r[reference.S]) / 1e3,
               delay_s / 60.0, 1.0 if on_layover and const[C_CHARGE] > 0.0 else 0.0,
               3.6 * speed[i], 100.0 * grade[i],
-              max(const[C_SERVICE] - bk[DECISION] * const[C_DECISION] / 3600.0, 0.0), low, high,
-              bk[PEAK_KW], r[reference.TIMER] / 60.0 if on_layover else 0.0)
+              _service_left_h(bk, const), low, high, bk[PEAK_KW],
+              r[reference.TIMER] / 60.0 if on_layover else 0.0)
     for k in range(len(values)):
         v = values[k]
         if not math.isfinite(v):
@@ -211,8 +216,7 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         q[4] = late_min
         q[5] = deficit
         bk[DECISION] += 1.0
-        left_h = max(const[C_SERVICE] - bk[DECISION] * const[C_DECISION] / 3600.0, 0.0)
-        q[6] = left_h if empty else 0.0
+        q[6] = _service_left_h(bk, const) if empty else 0.0
         delay_s = _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
                            obs)
         o = out[b]
@@ -276,12 +280,14 @@ class BusBatch:
         def index(names, name):
             return names.index(name) if name in names else -1
 
-        capacity = next((p for p in m.param_names if p.endswith(".max_passengers")), "")
-        self._capacity_at = index(m.param_names, capacity)
+        def of_any_effect(param):  # a parameter whichever effect fills its slot
+            return index(m.param_names, next((p for p in m.param_names
+                                              if p.endswith("." + param)), ""))
+
+        self._capacity_at = of_any_effect("max_passengers")
         self.power_at = index(m.param_names, "grid_charger.power_kw")
         self.efficiency_at = index(m.param_names, "grid_charger.efficiency")
-        soc_min_at = next((m.param_names.index(p) for p in m.param_names
-                           if p.endswith(".soc_min_frac")), -1)
+        soc_min_at = of_any_effect("soc_min_frac")
         acc = m.accumulator_names
         self.at = np.array([
             index(m.input_names, "ambient_degc"), index(m.input_names, "passenger_count"),
