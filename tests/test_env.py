@@ -74,10 +74,13 @@ def test_invalid_actions_raise_clear_errors(bad, words):
     assert words in str(info.value) and "speed_cap_kmh" in str(info.value)
 
 
-def test_episode_energy_equals_one_continuous_run_of_the_model():
+@pytest.mark.parametrize("at_stops", [False, True])
+def test_episode_energy_equals_one_continuous_run_of_the_model(at_stops):
     """Decision by decision with states carried is the same physics as one run of the
-    recorded inputs: battery and grid energy and the final SoC agree."""
-    env = gym.make("EBus-v0", service_h=1.5, layover_min=10.0, laps_per_trip=10).unwrapped
+    recorded inputs: battery and grid energy and the final SoC agree (decisions of 60 s, or
+    stop to stop)."""
+    env = gym.make("EBus-v0", service_h=1.5, layover_min=10.0, laps_per_trip=10,
+                   decide_at_stops=at_stops).unwrapped
     env.reset(seed=1)
     model = env.model
     start_states = env.buses.states.copy()
@@ -87,7 +90,7 @@ def test_episode_energy_equals_one_continuous_run_of_the_model():
     while not terminated:
         params = env.buses.params.copy()
         _, _, terminated, _, info = env.step(a)
-        rows.append(env.buses.inputs[0].copy())
+        rows.append(env.buses.inputs[0, :, :env.buses.rows[0]].copy())
         battery += info["battery_kwh"]
         grid += info["grid_kwh"]
     inputs = np.concatenate(rows, axis=1)
@@ -100,6 +103,39 @@ def test_episode_energy_equals_one_continuous_run_of_the_model():
     assert grid > 1.0 and s["grid_energy_kwh"] == pytest.approx(grid, rel=1e-9)
     assert s["battery_energy_kwh"] == pytest.approx(battery, rel=1e-9, abs=1e-9)
     assert s["soc_end_pct"] == pytest.approx(100 * env.buses.states[0, 3], abs=1e-9)
+
+
+def test_stop_to_stop_decisions_end_at_departures_and_layovers():
+    """With ``decide_at_stops`` a decision runs from one departure to the next (or into a
+    layover), never longer than ``decision_s``; the day still ends after ``service_h``."""
+    env = gym.make("EBus-v0", service_h=1.2, layover_min=6.0, decide_at_stops=True).unwrapped
+    env.reset(seed=0)
+    course, ref = env.course, env.buses.ref[0]
+    durations, kinds = [], []
+    terminated, mode = False, ref[reference.MODE]
+    while not terminated:
+        _, _, terminated, truncated, info = env.step(action(speed_cap_kmh=40.0))
+        assert not truncated
+        durations.append(info["duration_s"])
+        mode, before = ref[reference.MODE], mode
+        if mode == reference.LAYOVER and before != reference.LAYOVER:
+            kinds.append("layover")  # just arrived: the whole layover is ahead
+            assert ref[reference.TIMER] >= 60.0 * env.config.min_layover_min - 0.1
+        elif mode == reference.DRIVE and ref[reference.V] == 0.0:
+            kinds.append("departure")  # standing at a stop (or the terminal), doors shut
+            k = int(ref[reference.STOP])
+            assert ref[reference.S] == pytest.approx(0.0 if k == 0 else course.stop_m[k - 1])
+        else:
+            kinds.append("cut")  # a long stretch or layover split at decision_s
+            assert info["duration_s"] == pytest.approx(env.config.decision_s)
+    durations = np.array(durations)
+    assert np.all(durations <= env.config.decision_s + 1e-9)
+    assert durations.sum() == pytest.approx(3600.0 * 1.2, abs=env.config.decision_s)
+    trips = int(ref[reference.LAP])  # trips completed (each ends in a layover)
+    assert trips >= 1
+    assert kinds.count("departure") >= trips * (len(course.stop_m) - 1)  # at every stop
+    assert kinds.count("layover") in (trips, trips + 1)
+    assert len(set(durations.round(1))) > 10  # segments differ in length
 
 
 def test_speed_cap_keeps_the_stops_and_the_distance_and_takes_longer():
@@ -242,3 +278,47 @@ def test_every_shipped_env_config_runs_with_its_climate(name):
     assert min(seen) >= cfg.ambient_mean_degc - cfg.ambient_amplitude_k - 1e-4
     assert max(seen) <= cfg.ambient_mean_degc + cfg.ambient_amplitude_k + 1e-4
     assert max(seen) - min(seen) > cfg.ambient_amplitude_k  # a day's swing, not a constant
+
+
+def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
+    """A climate and a month set the day's ambient from monthly normals (mean of the daily
+    minimum and maximum, half their difference). January in Gothenburg costs more HVAC
+    energy than May; in July in Barcelona the HVAC cools: a lower setpoint costs more."""
+    from ebus_env.envs.ebus import EnvConfig
+
+    cfg = EnvConfig(climate="barcelona", month=7)
+    assert (cfg.ambient_mean_degc, cfg.ambient_amplitude_k) == (26.0, 3.0)
+    cfg = EnvConfig.load("gothenburg_jan")
+    assert (cfg.ambient_mean_degc, cfg.ambient_amplitude_k) == (-1.0, 2.0)
+    own = EnvConfig(climate={"name": "here", "min_degc": [0] * 12, "max_degc": [10] * 12},
+                    month=3)
+    assert (own.ambient_mean_degc, own.ambient_amplitude_k) == (5.0, 5.0)
+
+    def hvac_kwh(name, setpoint_degc):
+        env = gym.make("EBus-v0", config=name, ambient_random_k=0.0, service_h=3.0).unwrapped
+        env.reset(seed=0)
+        total, terminated = 0.0, False
+        while not terminated:
+            _, _, terminated, _, info = env.step(action(setpoint_degc=setpoint_degc))
+            total += info["breakdown_kwh"]["cabin_hvac"]
+        return total
+
+    assert hvac_kwh("gothenburg_jan", 21.0) > 1.5 * hvac_kwh("gothenburg_may", 21.0)
+    assert hvac_kwh("barcelona_jul", 19.0) > 1.3 * hvac_kwh("barcelona_jul", 24.0)
+
+
+@pytest.mark.parametrize("keys, words", [
+    ({"climate": "barcelna", "month": 7}, "Did you mean 'barcelona'"),
+    ({"climate": "barcelona", "month": 13}, "1-12"),
+    ({"climate": "barcelona"}, "climate and month go together"),
+    ({"climate": "barcelona", "month": 7, "ambient_mean_degc": 20.0}, "not both"),
+    ({"climate": {"min_degc": [0] * 11, "max_degc": [9] * 12}, "month": 1}, "12 monthly values"),
+    ({"climate": {"min_degc": [5] * 12, "max_degc": [0] * 12}, "month": 1}, "must not exceed"),
+])
+def test_bad_climate_keys_raise_clear_errors(keys, words):
+    from ebus_env.envs.ebus import EnvConfig
+    from ebus_env.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=words):
+        EnvConfig.load("sort2_day" if "ambient_mean_degc" not in keys else None,
+                       **{"ambient_mean_degc": None, "ambient_amplitude_k": None, **keys})

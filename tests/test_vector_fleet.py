@@ -17,10 +17,10 @@ from ebus_env.envs.vector import EBusVectorEnv
 SHORT = {"service_h": 0.3}  # 18 decisions: episodes end and restart within a test
 
 
-def single_rollouts(n, seed, actions, autoreset):
+def single_rollouts(n, seed, actions, autoreset, **config):
     """What n single envs seeded seed + i give for the same actions, restarted as a vector
     env restarts them."""
-    envs = [gym.make("EBus-v0", **SHORT) for _ in range(n)]
+    envs = [gym.make("EBus-v0", **config) for _ in range(n)]
     first = np.array([e.reset(seed=seed + i)[0] for i, e in enumerate(envs)])
     ended = np.zeros(n, bool)
     steps = []
@@ -42,19 +42,23 @@ def single_rollouts(n, seed, actions, autoreset):
     return first, steps
 
 
-@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
-def test_vector_env_equals_single_envs_step_for_step(mode):
+@pytest.mark.parametrize("mode, config", [
+    (AutoresetMode.NEXT_STEP, SHORT), (AutoresetMode.SAME_STEP, SHORT),
+    # stop-to-stop decisions: the sub-envs' decisions differ in length within one call
+    (AutoresetMode.SAME_STEP, {"service_h": 0.12, "decide_at_stops": True, "laps_per_trip": 1})])
+def test_vector_env_equals_single_envs_step_for_step(mode, config):
     n = 17  # more than THREADS_FROM: the batch is split over threads
-    venv = gym.make_vec("EBus-v0", num_envs=n, autoreset_mode=mode, **SHORT)
+    venv = gym.make_vec("EBus-v0", num_envs=n, autoreset_mode=mode, **config)
     assert isinstance(venv, EBusVectorEnv) and venv.metadata["autoreset_mode"] == mode
     venv.action_space.seed(4)
     actions = [venv.action_space.sample() for _ in range(40)]
     obs, _ = venv.reset(seed=11)
-    first, steps = single_rollouts(n, 11, actions, mode)
+    first, steps = single_rollouts(n, 11, actions, mode, **config)
     np.testing.assert_array_equal(obs, first)
-    restarts = 0
+    restarts, lengths = 0, set()
     for a, rows in zip(actions, steps, strict=True):
         obs, reward, terminated, truncated, info = venv.step(a)
+        lengths |= set(info["duration_s"].round(1).tolist())
         np.testing.assert_array_equal(obs, np.array([r[0] for r in rows]))
         np.testing.assert_array_equal(reward, np.array([r[1] for r in rows]))
         np.testing.assert_array_equal(terminated, np.array([r[2] for r in rows]))
@@ -66,6 +70,7 @@ def test_vector_env_equals_single_envs_step_for_step(mode):
         if mode == AutoresetMode.NEXT_STEP and "_battery_kwh" in info:
             restarts += int((~info["_battery_kwh"]).sum())
     assert restarts >= n  # every sub-env ended and restarted at least once
+    assert len(lengths) > 5 if config.get("decide_at_stops") else lengths == {60.0}
 
 
 def test_vector_env_checks_actions_and_seeds():
@@ -176,3 +181,13 @@ def test_fleet_actions_are_checked_per_bus():
     bad[8] = np.nan
     with pytest.raises(ValueError, match=r"bus1\.charge_power_frac"):
         env.step(bad)
+
+
+def test_fleet_refuses_stop_to_stop_decisions():
+    """The fleet's central agent decides for every bus at once: decisions at each bus's own
+    stops would desynchronise the site's clock, so a clear error says so."""
+    from ebus_env.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="decide_at_stops"):
+        gym.make("EBusFleet-v0", lines=[{"config": "sort2_day", "buses": 2,
+                                         "decide_at_stops": True}])

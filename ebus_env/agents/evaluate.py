@@ -93,16 +93,14 @@ def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
     peak = np.zeros(n)
     depleted = np.zeros(n, bool)
     running = np.ones(n, bool)
-    hours = venv.config.decision_s / 3600.0
     day: dict[str, list] = {"time_h": [], "soc": [], "grid_kw": [], "setpoint_degc": [],
                             "cabin_degc": []}
     soc, cabin = venv.observation_names.index("soc"), venv.observation_names.index(
         "cabin_temp_degc")
-    steps = 0
+    elapsed_h = 0.0
     while running.any():
         actions, _ = policy.predict(obs, deterministic=True)
         obs, reward, terminated, truncated, info = venv.step(actions)
-        steps += 1
         kwh = info["breakdown_kwh"]
         add = {"distance_km": info["distance_km"], "traction": kwh["traction"],
                "hvac": kwh.get("cabin_hvac", np.zeros(n)),
@@ -115,7 +113,8 @@ def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
         depleted |= running & info["depleted"]
         if running[0]:
             last = info["final_obs"][0] if "final_obs" in info and info["_final_obs"][0] else obs[0]
-            day["time_h"].append(steps * hours)
+            elapsed_h += info["duration_s"][0] / 3600.0
+            day["time_h"].append(elapsed_h)
             day["soc"].append(float(last[soc]))
             day["grid_kw"].append(float(info["grid_kw"][0]))
             day["setpoint_degc"].append(float(info["actions"]["setpoint_degc"][0]))

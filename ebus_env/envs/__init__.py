@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-MAX_DECISIONS = 2000  # TimeLimit: a 24 h day of 60 s decisions fits, with margin
+MAX_DECISIONS = 10_000  # TimeLimit: a 24 h day of 10 s stop-to-stop decisions fits
 
 
 def register_envs() -> None:

@@ -58,20 +58,20 @@ OBS_HIGH = np.array([o[3] for o in OBSERVATIONS], np.float32)
 
 BOOK = ("ambient_mean_degc", "passengers_base_frac", "passengers_peak_frac", "capacity",
         "decision", "peak_grid_kw", "departure_delay_s", "cabin_before_degc",
-        "distance_before_m", "lap_before")
+        "distance_before_m", "lap_before", "elapsed_rows")
 (AMBIENT_MEAN, PASSENGERS_BASE, PASSENGERS_PEAK, CAPACITY, DECISION, PEAK_KW, DEP_DELAY,
- CABIN_BEFORE, DISTANCE_BEFORE, LAP_BEFORE) = range(len(BOOK))
+ CABIN_BEFORE, DISTANCE_BEFORE, LAP_BEFORE, ELAPSED_ROWS) = range(len(BOOK))
 OUT = ("battery_kwh", "grid_kwh", "grid_kw", "peak_grid_kw", "peak_grid_kw_in_step",
        "battery_shortfall_kwh", "schedule_delay_min", "distance_km", "comfort_low_degc",
-       "comfort_high_degc", "ambient_degc", "passengers", "empty")
+       "comfort_high_degc", "ambient_degc", "passengers", "empty", "duration_s")
 _OUT = {name: i for i, name in enumerate(OUT)}
 
 # constants of a batch, in one array for the compiled passes
 CONST = ("start_time_h", "decision_s", "service_h", "ambient_amplitude_k", "reserve_soc_pct",
          "charge_at_terminal", "lap_period_s", "layover_min_s", "jerk_mps3", "decel_mps2",
-         "dt_s", "charger_w", "length_m", "step_m", "soc_min")
+         "dt_s", "charger_w", "length_m", "step_m", "soc_min", "at_stops")
 (C_START, C_DECISION, C_SERVICE, C_AMPLITUDE, C_RESERVE, C_CHARGE, C_PERIOD, C_LAYOVER,
- C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP, C_SOC_MIN) = range(len(CONST))
+ C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP, C_SOC_MIN, C_AT_STOPS) = range(len(CONST))
 # indices into the model's arrays (-1: the model has no such input/parameter/state)
 AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc", "s_speed",
       "s_cabin", "s_distance", "a_motor", "a_charger", "a_shortfall", "a_ohmic",
@@ -109,19 +109,25 @@ def passengers(capacity, base_frac, peak_frac, hour):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _elapsed_h(book_b, const):
+    return book_b[ELAPSED_ROWS] * const[C_DT] / 3600.0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _hour(book_b, const):
-    return (const[C_START] + book_b[DECISION] * const[C_DECISION] / 3600.0) % 24.0
+    return (const[C_START] + _elapsed_h(book_b, const)) % 24.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _service_left_h(book_b, const):
-    return max(const[C_SERVICE] - book_b[DECISION] * const[C_DECISION] / 3600.0, 0.0)
+    return max(const[C_SERVICE] - _elapsed_h(book_b, const), 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
 def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h, speed, grade,
-            stop_m, dwell_s, rows_at, n_rows):
-    """Actions in physical units ``values`` (N, 5) -> parameters, input rows, reference."""
+            stop_m, dwell_s, rows_at, n_rows, rows):
+    """Actions in physical units ``values`` (N, 5) -> parameters, input rows, reference, and
+    the rows of the decision of each bus (``rows``: ``n_rows``, or fewer to the next stop)."""
     for b in range(lo, hi):
         bk = book[b]
         hour = _hour(bk, const)
@@ -132,11 +138,11 @@ def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h,
         bk[LAP_BEFORE] = ref[b, reference.LAP]
         bk[CABIN_BEFORE] = states[b, at[S_CABIN]] if at[S_CABIN] >= 0 else math.nan
         bk[DISTANCE_BEFORE] = states[b, at[S_DISTANCE]]
-        reference.advance_one(ref[b], speed, grade, const[C_STEP], stop_m, dwell_s,
-                              values[b, 0] / 3.6, values[b, 1], const[C_JERK], const[C_DECEL],
-                              const[C_PERIOD], const[C_LAYOVER], const[C_CHARGE],
-                              values[b, 3] * const[C_CHARGER], const[C_DT], n_rows, inputs[b],
-                              rows_at)
+        rows[b] = reference.advance_one(
+            ref[b], speed, grade, const[C_STEP], stop_m, dwell_s, values[b, 0] / 3.6,
+            values[b, 1], const[C_JERK], const[C_DECEL], const[C_PERIOD], const[C_LAYOVER],
+            const[C_CHARGE], values[b, 3] * const[C_CHARGER], const[C_DT], n_rows, inputs[b],
+            rows_at, const[C_AT_STOPS] > 0.0)
         if at[IN_AMBIENT] >= 0:
             inputs[b, at[IN_AMBIENT], :] = ambient_degc(bk[AMBIENT_MEAN], const[C_AMPLITUDE], hour)
         if at[IN_PASSENGERS] >= 0:
@@ -176,12 +182,12 @@ def _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
 
 @numba.njit(cache=True, nogil=True)
 def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, baseline_s,
-           dwell_s, obs, quantities, out):
+           dwell_s, rows, obs, quantities, out):
     """Score the decision just run (``quantities``, ``out``) and observe the new state."""
-    hours = const[C_DECISION] / 3600.0
     for b in range(lo, hi):
         bk = book[b]
         a = acc[b]
+        hours = rows[b] * const[C_DT] / 3600.0
         hour = _hour(bk, const)
         ambient = ambient_degc(bk[AMBIENT_MEAN], const[C_AMPLITUDE], hour)
         people = passengers(bk[CAPACITY], bk[PASSENGERS_BASE], bk[PASSENGERS_PEAK], hour)
@@ -216,6 +222,7 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         q[4] = late_min
         q[5] = deficit
         bk[DECISION] += 1.0
+        bk[ELAPSED_ROWS] += rows[b]
         q[6] = _service_left_h(bk, const) if empty else 0.0
         delay_s = _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
                            obs)
@@ -233,6 +240,7 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         o[10] = ambient
         o[11] = people
         o[12] = 1.0 if empty else 0.0
+        o[13] = 3600.0 * hours
 
 
 def course_of(cfg) -> Course:
@@ -270,9 +278,9 @@ class BusBatch:
         self.bus = load_bus(cfg.bus, overlays=[cfg.overlay] if cfg.overlay else ())
         self.model = m = self.bus.build(cfg.dt_s)
         self.course = c = course_of(cfg)
-        self.n_rows = int(round(cfg.decision_s / cfg.dt_s))
+        self.n_rows = int(round(cfg.decision_s / cfg.dt_s))  # the longest decision
         self.lap_period_s = c.lap_time_s + 60.0 * cfg.layover_min
-        self.max_decisions = int(math.ceil(cfg.service_h * 3600.0 / cfg.decision_s))
+        self.service_rows = cfg.service_h * 3600.0 / cfg.dt_s
         self.offsets_s = np.zeros(n) if offsets_s is None else np.asarray(offsets_s, float)
         self.energy_terms = [name for name, mode in m.layout.accumulators if mode == "sum"]
         self._energy_cols = np.array([m.accumulator_names.index(t) for t in self.energy_terms])
@@ -308,7 +316,8 @@ class BusBatch:
                          1.0 if cfg.charge_at_terminal else 0.0, self.lap_period_s,
                          60.0 * cfg.min_layover_min, cfg.jerk_mps3, cfg.comfort_decel_mps2,
                          cfg.dt_s, 1e3 * charger_kw, c.length_m, c.step_m,
-                         m.params[soc_min_at] if soc_min_at >= 0 else 0.0)
+                         m.params[soc_min_at] if soc_min_at >= 0 else 0.0,
+                         1.0 if cfg.decide_at_stops else 0.0)
         self._row_h = np.arange(self.n_rows) * cfg.dt_s / 3600.0
         n_in = len(m.input_names)
         self.params = np.repeat(m.params[None, :], n, axis=0)
@@ -324,6 +333,7 @@ class BusBatch:
         self._kernel = m.kernel("run")
         self._input_set = np.arange(n, dtype=np.int64)
         self._step0 = np.zeros(n, np.int64)
+        self.rows = np.full(n, self.n_rows, np.int64)  # of each bus's last decision
         self._no_sel = np.zeros(0, np.int64)
         self._no_rec = np.zeros((n, 0, 0), np.float32)
         self._no_mask = np.zeros(1, np.bool_)
@@ -379,18 +389,18 @@ class BusBatch:
         c = self.course
         _before(lo, hi, self.values, self.book, self.params, self.states, self.ref, self.inputs,
                 self.const, self.at, self._row_h, c.speed_mps, c.grade_frac, c.stop_m,
-                c.dwell_s, self.rows_at, self.n_rows)
+                c.dwell_s, self.rows_at, self.n_rows, self.rows)
 
     def run(self, lo: int, hi: int) -> None:
         """Passes 2 and 3: the physics of buses lo..hi-1, then score and observe them."""
         c = self.course
         self.acc[lo:hi] = 0.0
         self._kernel(self.params, self.states, self.inputs, self._input_set, self._step0,
-                     self.n_rows, self.config.dt_s, 0, self._no_sel, self._no_rec,
+                     self.rows, self.config.dt_s, 0, self._no_sel, self._no_rec,
                      self._no_mask, self.acc, lo, hi)
         _after(lo, hi, self.book, self.states, self.ref, self.acc, self._load_cols, self.const,
-               self.at, c.speed_mps, c.grade_frac, c.baseline_s, c.dwell_s, self.obs,
-               self.quantities, self.out)
+               self.at, c.speed_mps, c.grade_frac, c.baseline_s, c.dwell_s, self.rows,
+               self.obs, self.quantities, self.out)
 
     # -- results ---------------------------------------------------------------------------
     @property
@@ -401,10 +411,14 @@ class BusBatch:
     def decisions(self) -> np.ndarray:
         return self.book[:, DECISION]
 
+    def elapsed_h(self) -> np.ndarray:
+        """Service time run so far [h], per bus."""
+        return self.book[:, ELAPSED_ROWS] * self.config.dt_s / 3600.0
+
     def ended(self) -> tuple[np.ndarray, np.ndarray]:
         """(battery empty, end of service) per bus, after a decision."""
         return (self.out[:, _OUT["empty"]] > 0.0,
-                self.book[:, DECISION] >= self.max_decisions)
+                self.book[:, ELAPSED_ROWS] >= self.service_rows - 0.5)
 
     def column(self, name: str) -> np.ndarray:
         """A column of ``out`` by name."""

@@ -11,6 +11,7 @@ import yaml
 
 from ebus_env.config import ROOT
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
+from ebus_env.envs.climate import climate_of
 from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
 from ebus_env.errors import ConfigError
 
@@ -77,7 +78,8 @@ class EnvConfig:
     laps_per_trip: int | None = None  # cycle laps between terminal layovers (None: ~1 h)
     service_h: float = 13.5
     start_time_h: float = 5.0
-    decision_s: float = 60.0
+    decision_s: float = 60.0  # a decision's length (with decide_at_stops: the longest)
+    decide_at_stops: bool = False  # decide at each departure (stop-to-stop segments, layovers)
     dt_s: float = 0.1
     soc_start_pct: float = 95.0
     reserve_soc_pct: float = 20.0
@@ -85,8 +87,11 @@ class EnvConfig:
     min_layover_min: float = 2.0  # the shortest layover (plugging in and out)
     charger_kw: float | None = None  # terminal charger rating (None: the bus's charger)
     charge_at_terminal: bool = True
-    ambient_mean_degc: float = 15.0  # daily mean
-    ambient_amplitude_k: float = 4.0  # half the daily swing (coldest 05:00, warmest 15:00)
+    climate: str | dict | None = None  # monthly normals (ebus_env.envs.climate), with month
+    month: int | None = None  # 1-12: the climate's month (sets the two ambient keys below)
+    ambient_mean_degc: float | None = None  # daily mean (default 15 without a climate)
+    ambient_amplitude_k: float | None = None  # half the daily swing (coldest 05:00,
+    # warmest 15:00; default 4 without a climate)
     ambient_random_k: float = 2.0  # daily mean drawn +- this per episode
     passengers_base_frac: float = 0.2  # of capacity, between peaks
     passengers_peak_frac: float = 0.8  # at the morning and evening peaks
@@ -94,6 +99,20 @@ class EnvConfig:
     jerk_mps3: float = 1.0  # ramp of the acceleration (paper App. B.1)
     comfort_decel_mps2: float = 1.0  # braking towards stops
     reward: dict | Reward = field(default_factory=dict)  # weights of Reward, or one
+
+    def __post_init__(self):
+        mean, amplitude = self.ambient_mean_degc, self.ambient_amplitude_k
+        if self.climate is not None or self.month is not None:
+            if self.climate is None or self.month is None:
+                raise ConfigError("climate and month go together: e.g. climate: barcelona, "
+                                  "month: 7.")
+            if mean is not None or amplitude is not None:
+                raise ConfigError("Give either climate and month or ambient_mean_degc and "
+                                  "ambient_amplitude_k, not both (the climate sets them).")
+            mean, amplitude = climate_of(self.climate).ambient(self.month)
+        object.__setattr__(self, "ambient_mean_degc", 15.0 if mean is None else float(mean))
+        object.__setattr__(self, "ambient_amplitude_k",
+                           4.0 if amplitude is None else float(amplitude))
 
     @classmethod
     def load(cls, source: str | Path | dict | None = None, **overrides) -> EnvConfig:
@@ -133,9 +152,12 @@ class EBusEnv(gym.Env):
     The bus drives laps of a line (a standard cycle or a King County route, described by
     distance: stops stay where they are) for a service day, with a layover on the terminal's
     charger after each trip, through a day of ambient temperature and passengers that rise
-    to morning and evening peaks. Each agent step is one decision interval (``decision_s``,
-    60 s); inside it the compiled Lo-Fi model (:mod:`ebus_env.model`) advances the physics at
-    ``dt_s`` (10 Hz): powertrain, battery, CC/CV charging, cabin HVAC.
+    to morning and evening peaks. Each agent step is one decision interval: ``decision_s``
+    (60 s), or with ``decide_at_stops`` one stop-to-stop segment (from a departure to the
+    next, driving and dwelling) or a layover, at most ``decision_s`` (longer ones are split).
+    Inside it the compiled Lo-Fi model (:mod:`ebus_env.model`) advances the physics at
+    ``dt_s`` (10 Hz): powertrain, battery, CC/CV charging, cabin HVAC. ``info["duration_s"]``
+    holds the decision's length.
 
     ## Action Space
     ``Box(-1, 1, (5,), float32)``, each mapped linearly onto its range:
@@ -172,7 +194,7 @@ class EBusEnv(gym.Env):
     | 10 | road grade here | % |
     | 11 | service left | h |
     | 12, 13 | comfort band, low and high | degC |
-    | 14 | the day's peak grid power so far (60 s means; what the peak term charges) | kW |
+    | 14 | the day's peak grid power so far (decision means; what the peak term charges) | kW |
     | 15 | layover left before the timetable's departure (0 while driving) | min |
 
     ## Rewards
@@ -191,13 +213,14 @@ class EBusEnv(gym.Env):
     Terminated at the end of service (``service_h``) or when the battery is empty (SoC at the
     pack's floor ``soc_min_frac``, or a demand it cannot deliver): the service hours left are
     charged as lost service. Truncation: ``gymnasium.make`` adds a TimeLimit of
-    2000 decisions (``max_episode_steps``; a 24 h day of 60 s decisions fits).
+    10,000 decisions (``max_episode_steps``; a 24 h day of 10 s decisions fits).
 
     ## Arguments
     ``gymnasium.make("EBus-v0", config="kc45_hilly", **overrides)``: ``config`` names a
     file in ``configs/env`` (or a path or a dict); overrides are :class:`EnvConfig` keys
     (``bus``, ``overlay``, ``cycle``/``route``, ``service_h``, ``decision_s``,
-    ``ambient_mean_degc``, ``reward`` (weights, or a :class:`Reward`), ...).
+    ``decide_at_stops``, ``ambient_mean_degc``, ``reward`` (weights, or a :class:`Reward`),
+    ...).
     ``render_mode``: ``"rgb_array"`` or ``"human"``.
     ``gymnasium.make_vec("EBus-v0", num_envs=64, ...)`` gives the native vector env
     (:class:`ebus_env.envs.vector.EBusVectorEnv`: one compiled call for all sub-envs, equal
@@ -205,8 +228,8 @@ class EBusEnv(gym.Env):
     stable-baselines3.
 
     ## Version History
-    * v0: first version (the peak so far, the layover left and the lost-service term were
-      added before the first release).
+    * v0: first version (the peak so far, the layover left, the lost-service term and
+      stop-to-stop decisions were added before the first release).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 4}
@@ -248,7 +271,7 @@ class EBusEnv(gym.Env):
         info["depleted"] = bool(depleted[0])
         if self.render_mode is not None:  # the day so far, for render()
             self._history.append(np.array([
-                buses.decisions()[0] * self.config.decision_s / 3600.0, info["speed_kmh_mean"],
+                buses.elapsed_h()[0], info["speed_kmh_mean"],
                 buses.states[0, buses.at[S_SOC]], info["battery_kw"], info["grid_kw"],
                 buses.cabin_degc(0), values[2]]))
             if self.render_mode == "human":
@@ -280,7 +303,7 @@ def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> 
     """``info`` of bus ``b``'s last decision: figures with units, reward terms, energy
     breakdown [kWh], the actions in their units."""
     info = dict(zip(OUT, buses.out[b].tolist(), strict=True))
-    hours = buses.config.decision_s / 3600.0
+    hours = info["duration_s"] / 3600.0
     info["battery_kw"] = info["battery_kwh"] / hours
     info["speed_kmh_mean"] = info["distance_km"] / hours
     info.update(zip(SCORED, buses.quantities[b, len(QUANTITIES) - len(SCORED):].tolist(),

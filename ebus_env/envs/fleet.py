@@ -61,6 +61,10 @@ class FleetConfig:
             n = int(keys.pop("buses"))
             out.append((EnvConfig.load(keys.pop("config", None), **keys), n))
         first = out[0][0]
+        for i, (cfg, _) in enumerate(out):
+            if cfg.decide_at_stops:
+                raise ConfigError(f"lines[{i}]: decide_at_stops is for EBus-v0; a fleet's central "
+                                  "agent decides for every bus at once, every decision_s.")
         for cfg, _ in out[1:]:
             for key in SHARED:
                 if getattr(cfg, key) != getattr(first, key):
@@ -146,7 +150,7 @@ class EBusFleetEnv(gym.Env):
 
     ## Episode End
     Terminated at the end of service or when any bus's battery is empty. Truncation:
-    TimeLimit of 2000 decisions (``gymnasium.make``).
+    TimeLimit of 10,000 decisions (``gymnasium.make``).
 
     ## Arguments
     ``gymnasium.make("EBusFleet-v0", config="fleet_sort2", chargers=2, site_limit_kw=600)``:

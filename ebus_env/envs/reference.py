@@ -14,7 +14,9 @@ over on a charger until the timetable's departure (at least ``layover_min_s``): 
 the layover absorbs delay before the next lap starts late.
 
 One compiled function advances the reference by ``n`` rows from its state vector
-(``STATE_NAMES``); the environment keeps one state per bus.
+(``STATE_NAMES``), or fewer: with ``at_stops`` it stops after the row in which the vehicle
+departs (from a stop or a layover) or begins a layover, so that decisions fall at stops;
+the environment keeps one state per bus.
 """
 
 from __future__ import annotations
@@ -48,7 +50,9 @@ def new_state(first_departure_s: float = 0.0) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
                  lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, out,
-                 rows_at):
+                 rows_at, at_stops=False):
+    """Advance one reference ``state`` by up to ``n`` rows, writing them into ``out``; returns
+    the rows written (``n``, or fewer with ``at_stops``: see the module docstring)."""
     last = len(speed) - 1
     final_stop = len(stop_m) - 1
     for row in range(n):
@@ -57,6 +61,7 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
         connected = 0.0
         door = 0.0
         v_next = 0.0
+        boundary = False  # departing, or beginning a layover
         if mode == 0.0:  # driving
             s = state[0]
             a = state[2]
@@ -92,6 +97,7 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
                 else:
                     state[5] = k + 1.0
                     state[3] = 0.0
+                boundary = True
         else:  # layover at the terminal
             connected = charger_connected
             state[4] -= dt
@@ -101,6 +107,7 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
                 state[5] = 0.0
                 state[3] = 0.0
                 state[8] = state[7] + dt - state[6] * lap_period_s
+                boundary = True
         j = min(int(state[0] / step_m), last)
         values = (v, (v_next - v) * (1.0 / dt), grade[j], connected,
                   charger_w if connected > 0.0 else math.nan, door)
@@ -109,6 +116,9 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
                 out[rows_at[c], row] = values[c]
         state[1] = v_next
         state[7] += dt
+        if at_stops and boundary:
+            return row + 1
+    return n
 
 
 @numba.njit(cache=True, nogil=True)

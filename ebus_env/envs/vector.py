@@ -25,7 +25,7 @@ class EBusVectorEnv(VectorEnv):
     """``num_envs`` copies of ``EBus-v0`` (same config, own seeds) stepped together.
 
     Arguments: ``num_envs``, ``config`` and overrides as for ``EBus-v0``,
-    ``max_episode_steps`` (the TimeLimit, 2000), ``autoreset_mode`` (``NEXT_STEP`` as
+    ``max_episode_steps`` (the TimeLimit, 10,000), ``autoreset_mode`` (``NEXT_STEP`` as
     Gymnasium's own vector envs; ``SAME_STEP`` puts the last observation and info of an
     ended episode in ``info["final_obs"]`` / ``info["final_info"]``, what stable-baselines3
     expects: see :mod:`ebus_env.envs.sb3`). ``info`` holds arrays (num_envs,) of the
@@ -115,8 +115,8 @@ class EBusVectorEnv(VectorEnv):
 
     def _info(self, values: np.ndarray, costs: np.ndarray, depleted: np.ndarray) -> dict:
         buses = self.buses
-        hours = self.config.decision_s / 3600.0
         info = {name: buses.out[:, i].copy() for i, name in enumerate(OUT)}
+        hours = info["duration_s"] / 3600.0
         info["battery_kw"] = info["battery_kwh"] / hours
         info["speed_kmh_mean"] = info["distance_km"] / hours
         info["depleted"] = depleted

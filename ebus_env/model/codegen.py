@@ -16,7 +16,7 @@ tests compare the compiled loop with.
 
 ``run[_record|_sample](params, states, inputs, input_set, step0, n_steps, dt_s, record_every,
 record_sel, record_out, sample_mask, acc, bus_lo, bus_hi)`` advances buses ``bus_lo..bus_hi-1``,
-each by ``n_steps`` steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in
+each by ``n_steps[b]`` steps starting at input row ``step0[b]`` of input set ``input_set[b]``, in
 place:
 
 * ``params`` (n_bus, n_params): parameter values, one row per bus (or per candidate);
@@ -300,7 +300,7 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str)
         out.append(f"        s{j} = 0.0")
     for j, _ in enumerate(extremes, start=len(sums)):
         out.append(f"        a{j} = acc[b, {j}]")
-    out.append("        for k in range(n_steps):")
+    out.append("        for k in range(n_steps[b]):")
     out.append(f"{ind3}row = step0[b] + k")
     out.append(f"{ind3}time_s = row * dt_s")
     for j, channel in enumerate(layout.inputs):

@@ -241,7 +241,7 @@ class Model:
 
     def run(self, params: np.ndarray, states: np.ndarray, inputs: np.ndarray,
             input_set: np.ndarray | None = None, step0: np.ndarray | None = None,
-            n_steps: int | None = None, record_every: int = 0,
+            n_steps: int | np.ndarray | None = None, record_every: int = 0,
             record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
             acc: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
             threads: int | None = None, python: bool = False) -> np.ndarray:
@@ -254,7 +254,8 @@ class Model:
         inputs : (n_inputs, n_rows) shared by all buses, or (n_sets, n_inputs, n_rows)
         input_set : (N,) which input set each bus reads (default: 0)
         step0 : (N,) first input row of each bus (default: 0)
-        n_steps : steps to advance (default: all rows after ``step0``)
+        n_steps : steps to advance, one count for all buses or (N,) per bus (default: all
+            rows after ``step0``)
         record_every, record_sel, record_out : trace recording (see codegen)
         acc : (N, n_acc) accumulators to add to (default: new ones)
         sample_mask : (n_rows,) bool: record only ``soc_frac`` at these rows, into
@@ -273,8 +274,13 @@ class Model:
         step0 = np.zeros(n_bus, np.int64) if step0 is None else np.asarray(step0, np.int64)
         if n_steps is None:
             n_steps = int(inputs.shape[2] - step0.max())
-        if np.any(step0 + n_steps > inputs.shape[2]) or np.any(step0 < 0):
-            raise ValueError(f"Rows step0..step0+{n_steps} run past the {inputs.shape[2]} input rows.")
+        steps = np.broadcast_to(np.asarray(n_steps, np.int64), (n_bus,)).copy()
+        bad = (steps < 0) | (step0 < 0) | (step0 + steps > inputs.shape[2])
+        if bad.any():
+            b = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"Bus {b}: rows {step0[b]}..{step0[b] + steps[b]} (step0 + n_steps) lie "
+                             f"outside the {inputs.shape[2]} input rows.")
+        n_steps = int(steps.max()) if n_bus else 0
         if states.shape != (n_bus, len(self.state_names)):
             raise ValueError(f"states must have shape ({n_bus}, {len(self.state_names)}).")
         if inputs.shape[1] != len(self.input_names):
@@ -298,7 +304,7 @@ class Model:
                 raise ValueError("sample_mask needs one flag per input row and record_out one "
                                  "row per flagged row in the run.")
         params = np.ascontiguousarray(params, dtype=float)
-        args = (params, states, inputs, input_set, step0, int(n_steps), self.dt_s,
+        args = (params, states, inputs, input_set, step0, steps, self.dt_s,
                 int(record_every), np.asarray(record_sel, np.int64), record_out, sample_mask, acc)
         if python:
             if self._python_kernel is None:
@@ -308,7 +314,7 @@ class Model:
         kernel = self.kernel(variant)
         threads = default_threads() if threads is None else max(1, threads)
         # split the buses over threads when there is enough work to pay for the hand-off
-        threads = min(threads, n_bus) if n_bus * n_steps >= 50_000 else 1
+        threads = min(threads, n_bus) if steps.sum() >= 50_000 else 1
         if threads == 1:
             kernel(*args, 0, n_bus)
         else:
