@@ -55,21 +55,26 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
     the rows written (``n``, or fewer with ``at_stops``: see the module docstring)."""
     last = len(speed) - 1
     final_stop = len(stop_m) - 1
+    # the state in locals (registers) while the rows run; written back at the end
+    s, v, a, mode, timer = state[S], state[V], state[A], state[MODE], state[TIMER]
+    stop, lap, time_s, dep_delay = state[STOP], state[LAP], state[TIME], state[DEP_DELAY]
+    c_speed, c_accel, c_grade, c_connected, c_rating, c_door = rows_at[0], rows_at[1], \
+        rows_at[2], rows_at[3], rows_at[4], rows_at[5]
+    per_step = 1.0 / step_m  # a multiplication where the rows' chain would wait on a division
+    done = n
     for row in range(n):
-        mode = state[3]
-        v = state[1]
         connected = 0.0
         door = 0.0
         v_next = 0.0
         boundary = False  # departing, or beginning a layover
-        if mode == 0.0:  # driving
-            s = state[0]
-            a = state[2]
-            k = int(state[5])
+        if mode == DRIVE:
+            k = int(stop)
             remaining = stop_m[k] - s
-            i = min(int((s + max(v, 1.0) * LOOKAHEAD_S) / step_m), last)
+            i = min(int((s + max(v, 1.0) * LOOKAHEAD_S) * per_step), last)
             target = min(speed[i], v_cap)
-            target = min(target, math.sqrt(2.0 * decel * max(remaining - ARRIVED_M, 0.0)))
+            braking = 2.0 * decel * max(remaining - ARRIVED_M, 0.0)  # v^2 that still stops
+            if target * target > braking:
+                target = math.sqrt(braking)
             wanted = min(max((target - v) * (1.0 / TAU_S), -1.5 * decel), a_cap)
             a = a + min(max(wanted - a, -3.0 * jerk * dt), jerk * dt)
             v_next = v + a * dt
@@ -81,44 +86,51 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
                 s = stop_m[k]
                 v_next = 0.0
                 a = 0.0
-                state[3] = 1.0
-                state[4] = dwell_s[k]
-            state[0] = s
-            state[2] = a
-        elif mode == 1.0:  # standing at a stop, doors open
+                mode = DWELL
+                timer = dwell_s[k]
+        elif mode == DWELL:  # standing at a stop, doors open
             door = 1.0
-            state[4] -= dt
-            if state[4] <= 0.0:
-                k = int(state[5])
+            timer -= dt
+            if timer <= 0.0:
+                k = int(stop)
                 if k == final_stop:  # the terminal: lay over until the timetable's departure
-                    departure = (state[6] + 1.0) * lap_period_s
-                    state[3] = 2.0
-                    state[4] = max(layover_min_s, departure - (state[7] + dt))
+                    departure = (lap + 1.0) * lap_period_s
+                    mode = LAYOVER
+                    timer = max(layover_min_s, departure - (time_s + dt))
                 else:
-                    state[5] = k + 1.0
-                    state[3] = 0.0
+                    stop = k + 1.0
+                    mode = DRIVE
                 boundary = True
         else:  # layover at the terminal
             connected = charger_connected
-            state[4] -= dt
-            if state[4] <= 0.0:
-                state[6] += 1.0
-                state[0] = 0.0
-                state[5] = 0.0
-                state[3] = 0.0
-                state[8] = state[7] + dt - state[6] * lap_period_s
+            timer -= dt
+            if timer <= 0.0:
+                lap += 1.0
+                s = 0.0
+                stop = 0.0
+                mode = DRIVE
+                dep_delay = time_s + dt - lap * lap_period_s
                 boundary = True
-        j = min(int(state[0] / step_m), last)
-        values = (v, (v_next - v) * (1.0 / dt), grade[j], connected,
-                  charger_w if connected > 0.0 else math.nan, door)
-        for c in range(6):
-            if rows_at[c] >= 0:
-                out[rows_at[c], row] = values[c]
-        state[1] = v_next
-        state[7] += dt
+        if c_speed >= 0:
+            out[c_speed, row] = v
+        if c_accel >= 0:
+            out[c_accel, row] = (v_next - v) * (1.0 / dt)
+        if c_grade >= 0:
+            out[c_grade, row] = grade[min(int(s * per_step), last)]
+        if c_connected >= 0:
+            out[c_connected, row] = connected
+        if c_rating >= 0:
+            out[c_rating, row] = charger_w if connected > 0.0 else math.nan
+        if c_door >= 0:
+            out[c_door, row] = door
+        v = v_next
+        time_s += dt
         if at_stops and boundary:
-            return row + 1
-    return n
+            done = row + 1
+            break
+    state[S], state[V], state[A], state[MODE], state[TIMER] = s, v, a, mode, timer
+    state[STOP], state[LAP], state[TIME], state[DEP_DELAY] = stop, lap, time_s, dep_delay
+    return done
 
 
 @numba.njit(cache=True, nogil=True)
