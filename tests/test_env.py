@@ -13,6 +13,7 @@ import ebus_env  # noqa: F401  (registers the environments)
 from ebus_env.envs import reference
 from ebus_env.envs.course import course_from_cycle
 from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR
+from ebus_env.errors import ConfigError, LogError
 from ebus_env.profile import Profile
 
 
@@ -317,8 +318,37 @@ def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
 ])
 def test_bad_climate_keys_raise_clear_errors(keys, words):
     from ebus_env.envs.ebus import EnvConfig
-    from ebus_env.errors import ConfigError
 
     with pytest.raises(ConfigError, match=words):
         EnvConfig.load("sort2_day" if "ambient_mean_degc" not in keys else None,
                        **{"ambient_mean_degc": None, "ambient_amplitude_k": None, **keys})
+
+
+def test_a_measured_logs_speed_profile_is_a_line(tmp_path):
+    """A log's speed profile becomes the line: its stand-stills are the stops (with their
+    dwell), its grade the grade, its distance one trip; the day runs on it."""
+    t = np.arange(0.0, 400.0, 1.0)
+    speed_kmh = np.zeros_like(t)
+    for start in (10.0, 140.0, 270.0):  # three runs of 100 s at 36 km/h, stand-stills between
+        speed_kmh[(t >= start) & (t < start + 100.0)] = 36.0
+    path = tmp_path / "day.csv"
+    path.write_text("time_s,speed_kmh,grade_pct\n" + "".join(
+        f"{a},{b},2.0\n" for a, b in zip(t, speed_kmh, strict=True)))
+    env = gym.make("EBus-v0", log=str(path), service_h=0.5, layover_min=3.0).unwrapped
+    course = env.course
+    assert course.length_m == pytest.approx(3000.0, abs=15.0)
+    np.testing.assert_allclose(course.stop_m, [1000.0, 2000.0, 3000.0], atol=15.0)
+    np.testing.assert_allclose(course.dwell_s[:2], [30.0, 30.0], atol=1.5)
+    assert np.median(course.grade_frac) == pytest.approx(0.02)
+    env.reset(seed=0)
+    terminated = False
+    distance = 0.0
+    while not terminated:
+        _, _, terminated, _, info = env.step(action())
+        distance += info["distance_km"]
+    assert distance > 4.0  # more than one trip in half an hour
+    with pytest.raises(ConfigError, match="give one line"):
+        gym.make("EBus-v0", log=str(path), route="kc45")
+    (tmp_path / "bad.csv").write_text("time_s,velocity\n0,1\n1,2\n")
+    with pytest.raises(LogError, match="No speed column.*bad.csv.*Fix"):
+        gym.make("EBus-v0", log=str(tmp_path / "bad.csv"))

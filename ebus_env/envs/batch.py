@@ -29,7 +29,7 @@ import numpy as np
 from ebus_env.config import load_bus
 from ebus_env.effects.vehicle import COMMUTER_SHAPE
 from ebus_env.envs import reference
-from ebus_env.envs.course import Course, course_from_cycle, course_from_route
+from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
 from ebus_env.errors import ConfigError
 from ebus_env.model.model import default_threads
@@ -245,9 +245,13 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
 
 def course_of(cfg) -> Course:
     """The line of an env config: laps of a cycle (about an hour between layovers unless
-    ``laps_per_trip``) or a King County route."""
+    ``laps_per_trip``), a King County route or a measured log's speed profile."""
+    if cfg.route and cfg.log:
+        raise ConfigError(f"route = {cfg.route!r} and log = {cfg.log!r}: give one line.")
     if cfg.route:
         return course_from_route(cfg.route)
+    if cfg.log:
+        return course_from_log(cfg.log, cfg.log_columns)
     if not cfg.cycle:
         raise ConfigError("An env config needs a 'cycle' or a 'route'.")
     from ebus_env.cycles import load_cycle

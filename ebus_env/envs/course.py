@@ -10,6 +10,7 @@ under the agent's speed and acceleration caps.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -107,3 +108,16 @@ def course_from_route(name: str, dwell_s: float = 20.0) -> Course:
     cycles = [load_route(leg).cycle(dwell_s=dwell_s, dt_s=0.5) for leg in legs]
     trip = cycles[0] if len(cycles) == 1 else cycles[0].then(cycles[1])
     return course_from_cycle(trip)
+
+
+def course_from_log(path: str | Path, columns: dict | str | None = None) -> Course:
+    """A measured log's speed profile (and grade, where the log has ``grade_pct`` or
+    ``altitude_m``) as a course: one trip, each stand-still a stop. Loaded and checked by
+    :func:`ebus_env.io.measured.load_log` (``columns``: its column map or preset); the log's
+    SoC, ambient and passengers are not used (the env draws the day)."""
+    from ebus_env.io.measured import load_log
+
+    profile = load_log(path, dt_s=0.1, columns=columns).profile
+    return course_from_cycle(Cycle(Path(path).stem, profile.time_s,
+                                   3.6 * profile.channel("speed_ref_mps"),
+                                   profile.channel("grade_frac")))

@@ -74,7 +74,9 @@ class EnvConfig:
     bus: str = "12m"  # name in configs/bus or a path
     overlay: str | None = None  # a calibrated overlay (``ebus calibrate --out``)
     cycle: str | None = "sort2"  # laps of a cycle, or
-    route: str | None = None  # a King County route (``kc45_out``...)
+    route: str | None = None  # a King County route (``kc45_out``...), or
+    log: str | None = None  # a measured log (CSV/Parquet): its speed profile is one trip
+    log_columns: str | dict | None = None  # the log's column map or preset (configs/logs)
     laps_per_trip: int | None = None  # cycle laps between terminal layovers (None: ~1 h)
     service_h: float = 13.5
     start_time_h: float = 5.0
@@ -149,15 +151,15 @@ class EBusEnv(gym.Env):
     ECO-charging actions.
 
     ## Description
-    The bus drives laps of a line (a standard cycle or a King County route, described by
-    distance: stops stay where they are) for a service day, with a layover on the terminal's
-    charger after each trip, through a day of ambient temperature and passengers that rise
-    to morning and evening peaks. Each agent step is one decision interval: ``decision_s``
-    (60 s), or with ``decide_at_stops`` one stop-to-stop segment (from a departure to the
-    next, driving and dwelling) or a layover, at most ``decision_s`` (longer ones are split).
-    Inside it the compiled Lo-Fi model (:mod:`ebus_env.model`) advances the physics at
-    ``dt_s`` (10 Hz): powertrain, battery, CC/CV charging, cabin HVAC. ``info["duration_s"]``
-    holds the decision's length.
+    The bus drives laps of a line (a standard cycle, a King County route, or a measured log's
+    speed profile, described by distance: stops stay where they are) for a service day, with
+    a layover on the terminal's charger after each trip, through a day of ambient temperature
+    and passengers that rise to morning and evening peaks. Each agent step is one decision
+    interval: ``decision_s`` (60 s), or with ``decide_at_stops`` one stop-to-stop segment
+    (from a departure to the next, driving and dwelling) or a layover, at most ``decision_s``
+    (longer ones are split). Inside it the compiled Lo-Fi model (:mod:`ebus_env.model`)
+    advances the physics at ``dt_s`` (10 Hz): powertrain, battery, CC/CV charging, cabin HVAC.
+    ``info["duration_s"]`` holds the decision's length.
 
     ## Action Space
     ``Box(-1, 1, (5,), float32)``, each mapped linearly onto its range:
@@ -218,9 +220,9 @@ class EBusEnv(gym.Env):
     ## Arguments
     ``gymnasium.make("EBus-v0", config="kc45_hilly", **overrides)``: ``config`` names a
     file in ``configs/env`` (or a path or a dict); overrides are :class:`EnvConfig` keys
-    (``bus``, ``overlay``, ``cycle``/``route``, ``service_h``, ``decision_s``,
-    ``decide_at_stops``, ``ambient_mean_degc``, ``reward`` (weights, or a :class:`Reward`),
-    ...).
+    (``bus``, ``overlay``, ``cycle``/``route``/``log``, ``service_h``, ``decision_s``,
+    ``decide_at_stops``, ``climate`` and ``month``, ``ambient_mean_degc``, ``reward``
+    (weights, or a :class:`Reward`), ...).
     ``render_mode``: ``"rgb_array"`` or ``"human"``.
     ``gymnasium.make_vec("EBus-v0", num_envs=64, ...)`` gives the native vector env
     (:class:`ebus_env.envs.vector.EBusVectorEnv`: one compiled call for all sub-envs, equal
