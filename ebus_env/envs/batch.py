@@ -67,10 +67,10 @@ OUT = ("battery_kwh", "grid_kwh", "grid_kw", "peak_grid_kw", "peak_grid_kw_in_st
 _OUT = {name: i for i, name in enumerate(OUT)}
 
 # constants of a batch, in one array for the compiled passes
-CONST = ("start_time_h", "decision_s", "service_h", "ambient_amplitude_k", "reserve_soc_pct",
+CONST = ("start_time_h", "service_h", "ambient_amplitude_k", "reserve_soc_pct",
          "charge_at_terminal", "lap_period_s", "layover_min_s", "jerk_mps3", "decel_mps2",
          "dt_s", "charger_w", "length_m", "step_m", "soc_min", "at_stops")
-(C_START, C_DECISION, C_SERVICE, C_AMPLITUDE, C_RESERVE, C_CHARGE, C_PERIOD, C_LAYOVER,
+(C_START, C_SERVICE, C_AMPLITUDE, C_RESERVE, C_CHARGE, C_PERIOD, C_LAYOVER,
  C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP, C_SOC_MIN, C_AT_STOPS) = range(len(CONST))
 # indices into the model's arrays (-1: the model has no such input/parameter/state)
 AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc", "s_speed",
@@ -253,7 +253,7 @@ def course_of(cfg) -> Course:
     if cfg.log:
         return course_from_log(cfg.log, cfg.log_columns)
     if not cfg.cycle:
-        raise ConfigError("An env config needs a 'cycle' or a 'route'.")
+        raise ConfigError("An env config needs a 'cycle', a 'route' or a 'log'.")
     from ebus_env.cycles import load_cycle
 
     lap = load_cycle(cfg.cycle)
@@ -315,7 +315,7 @@ class BusBatch:
         charger_kw = cfg.charger_kw if cfg.charger_kw is not None else \
             m.params[self.power_at] if self.power_at >= 0 else 0.0
         self.const = np.zeros(len(CONST))
-        self.const[:] = (cfg.start_time_h, cfg.decision_s, cfg.service_h,
+        self.const[:] = (cfg.start_time_h, cfg.service_h,
                          cfg.ambient_amplitude_k, cfg.reserve_soc_pct,
                          1.0 if cfg.charge_at_terminal else 0.0, self.lap_period_s,
                          60.0 * cfg.min_layover_min, cfg.jerk_mps3, cfg.comfort_decel_mps2,
