@@ -85,16 +85,14 @@ def main() -> None:
         label = f"EBus-v0 native vector env, {n} sub-envs (make_vec)"
         print(f"  {label:55s} {rate:12,.0f}  {'>= 100,000' if n == 64 else ''}")
     # stop-to-stop decisions: shorter on SORT 2 (46 s on average), each sub-env its own length
-    for label, make in (("EBus-v0 decide_at_stops, the env itself",
-                         lambda: gym.make("EBus-v0", decide_at_stops=True).unwrapped),
-                        ("EBus-v0 decide_at_stops, vector env, 64 sub-envs",
-                         lambda: gym.make_vec("EBus-v0", num_envs=64, decide_at_stops=True))):
-        env = make()
-        rate_of = vector_rate if hasattr(env, "num_envs") else single_rate
-        n_steps = 3 if smoke else (steps * 4 // 64 if hasattr(env, "num_envs") else steps)
-        rate_of(env, 3, 0)
-        rate = median(lambda s, env=env, k=n_steps, f=rate_of: f(env, k, s), repeats)
-        print(f"  {label:55s} {rate:12,.0f}")
+    env = gym.make("EBus-v0", decide_at_stops=True).unwrapped
+    single_rate(env, 3, 0)
+    rate = median(lambda s: single_rate(env, steps, s), repeats)
+    print(f"  {'EBus-v0 decide_at_stops, the env itself':55s} {rate:12,.0f}")
+    venv = gym.make_vec("EBus-v0", num_envs=64, decide_at_stops=True)
+    vector_rate(venv, 3, 0)
+    rate = median(lambda s: vector_rate(venv, 3 if smoke else steps * 4 // 64, s), repeats)
+    print(f"  {'EBus-v0 decide_at_stops, vector env, 64 sub-envs':55s} {rate:12,.0f}")
     env = gym.make("EBusFleet-v0", config="fleet_sort2").unwrapped
     single_rate(env, 3, 0)
     rate = median(lambda s: single_rate(env, max(steps // 5, 3), s), repeats)

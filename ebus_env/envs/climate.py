@@ -52,9 +52,9 @@ class Climate:
 
     def ambient(self, month: int) -> tuple[float, float]:
         """(daily mean [degC], half the daily swing [K]) of ``month`` (1-12)."""
-        if not 1 <= int(month) <= 12 or int(month) != month:
+        if not isinstance(month, int | float) or month not in range(1, 13):
             raise ConfigError(f"month = {month!r}: give a month number 1-12.")
-        low, high = self.min_degc[month - 1], self.max_degc[month - 1]
+        low, high = self.min_degc[int(month) - 1], self.max_degc[int(month) - 1]
         return 0.5 * (low + high), 0.5 * (high - low)
 
 
