@@ -117,18 +117,23 @@ def batch(hours: float, sizes, repeat: int) -> None:
             t = statistics.median(walls)
             row(f"batch of {n} parameter sets, {threads} thread(s)", f"{t:.2f} s",
                 f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
-        # what calibration runs: the same batch, SoC kept at a 1 Hz log's rows, no energy sums
-        model.compile(sample=True)
-        inputs = model.input_array(day)
-        states = np.repeat(model.initial_state(model.params, {"speed_ref_mps": 0.0}, 0.95)[None],
-                           n, axis=0)
-        mask = np.zeros(day.n_steps, bool)
-        mask[::round(1.0 / model.dt_s)] = True
-        soc = np.zeros((n, int(mask.sum()), 1), np.float32)
-        t = median_time(lambda s=states: model.run(params, s.copy(), inputs, sample_mask=mask,
-                                                   record_out=soc), repeat)
-        row(f"  as calibration runs them (SoC at 1 Hz only), 2 threads",
-            f"{t:.2f} s", f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
+        calibration_pass(model, day, params, repeat)
+
+
+def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
+    """The batch as calibration runs it: SoC kept at a 1 Hz log's rows, no energy sums."""
+    model.compile(sample=True)
+    n = params.shape[0]
+    inputs = model.input_array(day)
+    states = np.repeat(model.initial_state(model.params, {"speed_ref_mps": 0.0}, 0.95)[None],
+                       n, axis=0)
+    mask = np.zeros(day.n_steps, bool)
+    mask[::round(1.0 / model.dt_s)] = True
+    soc = np.zeros((n, int(mask.sum()), 1), np.float32)
+    t = median_time(lambda: model.run(params, states.copy(), inputs, sample_mask=mask,
+                                      record_out=soc, threads=2), repeat)
+    row("  as calibration runs them (SoC at 1 Hz only), 2 threads", f"{t:.2f} s",
+        f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
 
 
 def memory(model_hours=(1.35, 13.5)) -> None:
