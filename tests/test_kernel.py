@@ -14,7 +14,7 @@ import pytest
 
 from ebus_env.cycles import service_day
 from ebus_env.errors import CompositionError, ConfigError
-from ebus_env.model.model import build_model
+from ebus_env.model.model import build_model, run_chunks
 from tests.conftest import DT, constant_profile
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -54,6 +54,30 @@ def test_batch_equals_each_member_alone(model12, mixed_profile):
         np.testing.assert_array_equal(batch.record("soc_frac")[i], single.trace("soc_frac")[::10])
     # the members really differ
     assert np.ptp(batch.final("soc_frac")) > 1e-3
+
+
+def test_run_chunks_runs_every_chunk_and_reraises():
+    done = np.zeros(9, int)
+
+    def mark(lo, hi):
+        done[lo:hi] += 1
+
+    run_chunks(mark, [0, 3, 6, 9])
+    np.testing.assert_array_equal(done, 1)  # each bus exactly once
+
+    def fail_in(chunk_lo):
+        def fn(lo, hi):
+            if lo == chunk_lo:
+                raise RuntimeError(f"chunk {lo}")
+            done[lo:hi] += 1
+        return fn
+
+    for lo in (0, 4):  # the chunk on this thread, then one on the pool
+        done[:] = 0
+        with pytest.raises(RuntimeError, match=f"chunk {lo}"):
+            run_chunks(fail_in(lo), [0, 4, 8])
+        # the other chunk was not abandoned: it finished before the error reached the caller
+        np.testing.assert_array_equal(done[4:8] if lo == 0 else done[0:4], 1)
 
 
 def test_compiled_equals_plain_python(model12, mixed_profile):

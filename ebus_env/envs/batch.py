@@ -20,7 +20,6 @@ bookkeeping lives in ``book`` (columns ``BOOK``), the decision's figures in ``ou
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numba
@@ -32,7 +31,7 @@ from ebus_env.envs import reference
 from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
 from ebus_env.errors import ConfigError
-from ebus_env.model.model import default_threads
+from ebus_env.model.model import default_threads, run_chunks
 from ebus_env.units import J_PER_KWH
 
 OBSERVATIONS = (  # name, unit, low, high
@@ -81,16 +80,6 @@ AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc"
 SHAPE_H = np.array(COMMUTER_SHAPE.presets["commuter"].x, float)
 SHAPE = np.array(COMMUTER_SHAPE.presets["commuter"].y, float)
 THREADS_FROM = 16  # buses per batch from which a decision is split over threads
-
-_POOL: ThreadPoolExecutor | None = None
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=default_threads(), thread_name_prefix="ebus-env")
-    return _POOL
-
 
 @numba.njit(cache=True, nogil=True)
 def ambient_degc(mean_degc, amplitude_k, hour):
@@ -342,8 +331,7 @@ class BusBatch:
         self._no_rec = np.zeros((n, 0, 0), np.float32)
         self._no_mask = np.zeros(1, np.bool_)
         threads = default_threads() if n >= THREADS_FROM else 1
-        edges = np.linspace(0, n, threads + 1).astype(int).tolist()
-        self._chunks = list(zip(edges[:-1], edges[1:], strict=True))
+        self._edges = np.linspace(0, n, threads + 1).astype(int).tolist()
 
     # -- episodes --------------------------------------------------------------------------
     def reset(self, b: int, rng: np.random.Generator) -> None:
@@ -378,11 +366,7 @@ class BusBatch:
         """One decision of every bus, actions in physical units ``values`` (n, 5) (columns
         as ``ACTIONS``); results in ``obs``, ``quantities``, ``out``, ``acc``."""
         self.values[:] = values
-        if len(self._chunks) == 1:
-            self._chunk(0, self.n)
-            return
-        for f in [_pool().submit(self._chunk, lo, hi) for lo, hi in self._chunks]:
-            f.result()
+        run_chunks(self._chunk, self._edges)
 
     def _chunk(self, lo: int, hi: int) -> None:
         self.drive(lo, hi)

@@ -15,7 +15,7 @@ import math
 import os
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 
@@ -38,6 +38,20 @@ def _pool() -> ThreadPoolExecutor:
     if _POOL is None:
         _POOL = ThreadPoolExecutor(max_workers=default_threads(), thread_name_prefix="ebus")
     return _POOL
+
+
+def run_chunks(fn, edges) -> None:
+    """Call ``fn(lo, hi)`` for each chunk ``edges[i]..edges[i+1]``, all at once: the first on
+    this thread (one hand-off fewer), the others on a shared pool (the compiled passes release
+    the GIL). Returns when every chunk is done; re-raises the first error."""
+    chunks = list(zip(edges[:-1], edges[1:], strict=True))
+    futures = [_pool().submit(fn, lo, hi) for lo, hi in chunks[1:]]
+    try:
+        fn(*chunks[0])
+    finally:
+        wait(futures)  # no chunk may still write into the arrays when this returns
+    for f in futures:
+        f.result()
 
 
 def _resolve(item: str | Effect) -> Effect:
@@ -318,11 +332,8 @@ class Model:
         if threads == 1:
             kernel(*args, 0, n_bus)
         else:
-            edges = np.linspace(0, n_bus, threads + 1).astype(int)
-            futures = [_pool().submit(kernel, *args, lo, hi)
-                       for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
-            for f in futures:
-                f.result()
+            run_chunks(lambda lo, hi: kernel(*args, lo, hi),
+                       np.linspace(0, n_bus, threads + 1).astype(int).tolist())
         return acc
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
