@@ -12,7 +12,7 @@ import pytest
 import ebus_env  # noqa: F401  (registers the environments)
 from ebus_env.envs import reference
 from ebus_env.envs.course import course_from_cycle
-from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR
+from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR, checked_actions, physical
 from ebus_env.errors import ConfigError, LogError
 from ebus_env.profile import Profile
 
@@ -73,6 +73,28 @@ def test_invalid_actions_raise_clear_errors(bad, words):
     with pytest.raises(ValueError) as info:
         env.step(bad)
     assert words in str(info.value) and "speed_cap_kmh" in str(info.value)
+
+
+@pytest.mark.parametrize("n_bus", [1, 4])  # 5 actions (checked in Python), 20 (with numpy)
+def test_one_bad_action_among_good_ones_is_named(n_bus):
+    shape = (n_bus, len(ACTIONS)) if n_bus > 1 else (len(ACTIONS),)
+    names = [a.name for a in ACTIONS]
+    good = np.linspace(-1.0, 1.0, np.prod(shape)).reshape(shape).astype(np.float32)
+    np.testing.assert_array_equal(checked_actions(good, shape, names, "test"), good)
+    for value, words in ((np.nan, "finite"), (-1.01, "[-1, 1]"), (np.inf, "finite")):
+        bad = good.copy()
+        bad[(-1, 2) if n_bus > 1 else 2] = value
+        with pytest.raises(ValueError, match="setpoint_degc") as info:
+            checked_actions(bad, shape, names, "test")
+        assert words in str(info.value)
+
+
+def test_actions_map_linearly_onto_their_ranges():
+    """-1 and 1 give the ends exactly: a pulse duty of exactly 1 is continuous charging."""
+    ends = physical(np.array([[-1.0] * len(ACTIONS), [1.0] * len(ACTIONS), [0.0] * len(ACTIONS)]))
+    np.testing.assert_array_equal(ends[0], [a.low for a in ACTIONS])
+    np.testing.assert_array_equal(ends[1], [a.high for a in ACTIONS])
+    np.testing.assert_allclose(ends[2], [(a.low + a.high) / 2 for a in ACTIONS], rtol=1e-15)
 
 
 @pytest.mark.parametrize("at_stops", [False, True])

@@ -38,6 +38,7 @@ ACTIONS = (
     ActionRange("pulse_duty", "1", 0.2, 1.0,
                 "ECO-charging: pulse duty cycle (1: continuous charging)"),
 )
+ACTION_NAMES = tuple(r.name for r in ACTIONS)
 ACTION_LOW = np.array([r.low for r in ACTIONS])
 ACTION_SPAN = np.array([r.high - r.low for r in ACTIONS])
 
@@ -46,9 +47,11 @@ def checked_actions(actions, shape: tuple[int, ...], names: list[str], env: str)
     """Actions as float64 of ``shape``, each finite and in [-1, 1], or a clear error naming
     the first bad one (``names`` along the last axis)."""
     a = np.asarray(actions, dtype=np.float64)
-    if a.shape == shape and a.size:  # the common case, quickly (NaN fails both comparisons)
-        low, high = a.min(), a.max()
-        if -1.0 <= low and high <= 1.0:
+    if a.shape == shape and a.size:  # the common case, quickly (NaN fails every comparison)
+        if a.size <= 16:  # one bus: Python's comparisons beat two numpy reductions (1.6 vs 5 us)
+            if all(-1.0 <= x <= 1.0 for x in a.ravel().tolist()):
+                return a
+        elif -1.0 <= a.min() and a.max() <= 1.0:
             return a
     if a.shape != shape:
         raise ValueError(f"Action has shape {a.shape}; {env} takes {shape} ({', '.join(names)}),"
@@ -63,7 +66,8 @@ def checked_actions(actions, shape: tuple[int, ...], names: list[str], env: str)
 
 
 def physical(actions: np.ndarray) -> np.ndarray:
-    """Checked actions (..., 5) in [-1, 1] -> values in the units of ``ACTIONS``."""
+    """Checked actions (..., 5) in [-1, 1] -> values in the units of ``ACTIONS``; -1 and 1
+    give exactly low and high (a pulse duty of exactly 1 is continuous charging)."""
     return ACTION_LOW + 0.5 * (actions + 1.0) * ACTION_SPAN
 
 
@@ -312,5 +316,5 @@ def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> 
                     strict=True))
     info["reward_terms"] = dict(zip(TERMS, costs.tolist(), strict=True))
     info["breakdown_kwh"] = buses.breakdown_kwh(b)
-    info["actions"] = dict(zip((a.name for a in ACTIONS), values.tolist(), strict=True))
+    info["actions"] = dict(zip(ACTION_NAMES, values.tolist(), strict=True))
     return info

@@ -44,6 +44,9 @@ def run_chunks(fn, edges) -> None:
     """Call ``fn(lo, hi)`` for each chunk ``edges[i]..edges[i+1]``, all at once: the first on
     this thread (one hand-off fewer), the others on a shared pool (the compiled passes release
     the GIL). Returns when every chunk is done; re-raises the first error."""
+    if len(edges) == 2:  # one chunk: no pool at all
+        fn(edges[0], edges[1])
+        return
     chunks = list(zip(edges[:-1], edges[1:], strict=True))
     futures = [_pool().submit(fn, lo, hi) for lo, hi in chunks[1:]]
     try:
