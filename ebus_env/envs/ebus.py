@@ -251,7 +251,7 @@ class EBusEnv(gym.Env):
         self.bus, self.model, self.course = self.buses.bus, self.buses.model, self.buses.course
         self.reward_fn = reward_of(cfg)
         self.observation_names = [o[0] for o in OBSERVATIONS]
-        self.action_names = [a.name for a in ACTIONS]
+        self.action_names = list(ACTION_NAMES)
         self.action_space, self.observation_space = spaces()
         self._history: list[np.ndarray] = []
         self._started = False

@@ -17,7 +17,7 @@ from gymnasium.vector.utils import batch_space
 
 from ebus_env.envs import MAX_DECISIONS
 from ebus_env.envs.batch import OBSERVATIONS, OUT, BusBatch
-from ebus_env.envs.ebus import ACTIONS, SCORED, EnvConfig, checked_actions, physical, reward_of, spaces
+from ebus_env.envs.ebus import ACTION_NAMES, SCORED, EnvConfig, checked_actions, physical, reward_of, spaces
 from ebus_env.envs.reward import QUANTITIES, TERMS
 
 
@@ -50,7 +50,7 @@ class EBusVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.observation_names = [o[0] for o in OBSERVATIONS]
-        self.action_names = [a.name for a in ACTIONS]
+        self.action_names = list(ACTION_NAMES)
         self._rngs: list[np.random.Generator] = []
         self._ended = np.zeros(num_envs, bool)
         self._elapsed = np.zeros(num_envs, np.int64)
@@ -125,7 +125,7 @@ class EBusVectorEnv(VectorEnv):
         info["reward_terms"] = {t: costs[:, i] for i, t in enumerate(TERMS)}
         kwh = buses.breakdown_matrix_kwh()
         info["breakdown_kwh"] = {t: kwh[:, i] for i, t in enumerate(buses.energy_terms)}
-        info["actions"] = {a.name: values[:, i] for i, a in enumerate(ACTIONS)}
+        info["actions"] = {name: values[:, i] for i, name in enumerate(ACTION_NAMES)}
         return info
 
     def close_extras(self, **kwargs):
