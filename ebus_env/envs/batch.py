@@ -277,7 +277,6 @@ class BusBatch:
         self.offsets_s = np.zeros(n) if offsets_s is None else np.asarray(offsets_s, float)
         self.energy_terms = [name for name, mode in m.layout.accumulators if mode == "sum"]
         self._energy_at = [m.accumulator_names.index(t) for t in self.energy_terms]
-        self._energy_cols = np.array(self._energy_at)
 
         def index(names, name):
             return names.index(name) if name in names else -1
@@ -415,7 +414,7 @@ class BusBatch:
 
     def breakdown_matrix_kwh(self) -> np.ndarray:
         """(n, len(energy_terms)): the last decision's energy by term [kWh]."""
-        return self.acc[:, self._energy_cols] / J_PER_KWH
+        return self.acc[:, self._energy_at] / J_PER_KWH
 
     def breakdown_kwh(self, b: int) -> dict[str, float]:
         acc = self.acc[b].tolist()  # one bus: Python floats are quicker than a numpy gather

@@ -332,11 +332,8 @@ class Model:
         threads = default_threads() if threads is None else max(1, threads)
         # split the buses over threads when there is enough work to pay for the hand-off
         threads = min(threads, n_bus) if steps.sum() >= 50_000 else 1
-        if threads == 1:
-            kernel(*args, 0, n_bus)
-        else:
-            run_chunks(lambda lo, hi: kernel(*args, lo, hi),
-                       np.linspace(0, n_bus, threads + 1).astype(int).tolist())
+        run_chunks(lambda lo, hi: kernel(*args, lo, hi),
+                   np.linspace(0, n_bus, threads + 1).astype(int).tolist())
         return acc
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
