@@ -37,7 +37,7 @@ def lookup1(table, x):
     Written without branches (clamp, then load) so that loops over many buses vectorise."""
     last = table[2] - 1.0
     u = min(max((x - table[0]) * table[1], 0.0), last)
-    i = min(int(u), int(last) - 1)
+    i = max(min(int(u), int(last) - 1), 0)  # provably >= 0: no negative-index wrap-around code
     f = u - i
     return table[_HEADER_1D + i] * (1.0 - f) + table[_HEADER_1D + i + 1] * f
 
@@ -48,8 +48,8 @@ def lookup2(table, x, y):
     ny = int(table[5])
     u = min(max((x - table[0]) * table[1], 0.0), table[2] - 1.0)
     w = min(max((y - table[3]) * table[4], 0.0), table[5] - 1.0)
-    i = min(int(u), int(table[2]) - 2)
-    j = min(int(w), ny - 2)
+    i = max(min(int(u), int(table[2]) - 2), 0)
+    j = max(min(int(w), ny - 2), 0)
     fu = u - i
     fw = w - j
     base = _HEADER_2D + i * ny + j
