@@ -12,7 +12,7 @@ import pytest
 import ebus_env  # noqa: F401  (registers the environments)
 from ebus_env.envs import reference
 from ebus_env.envs.course import course_from_cycle
-from ebus_env.envs.ebus import ACTIONS, CONFIG_DIR, checked_actions, physical
+from ebus_env.envs.ebus import ACTION_NAMES, ACTIONS, CONFIG_DIR, checked_actions, physical
 from ebus_env.errors import ConfigError, LogError
 from ebus_env.profile import Profile
 
@@ -78,7 +78,7 @@ def test_invalid_actions_raise_clear_errors(bad, words):
 @pytest.mark.parametrize("n_bus", [1, 4])  # 5 actions (checked in Python), 20 (with numpy)
 def test_one_bad_action_among_good_ones_is_named(n_bus):
     shape = (n_bus, len(ACTIONS)) if n_bus > 1 else (len(ACTIONS),)
-    names = [a.name for a in ACTIONS]
+    names = list(ACTION_NAMES)
     good = np.linspace(-1.0, 1.0, np.prod(shape)).reshape(shape).astype(np.float32)
     np.testing.assert_array_equal(checked_actions(good, shape, names, "test"), good)
     for value, words in ((np.nan, "finite"), (-1.01, "[-1, 1]"), (np.inf, "finite")):
