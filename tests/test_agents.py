@@ -4,8 +4,10 @@ sheet is deterministic, PPO trains, saves and loads, the command writes its file
 from __future__ import annotations
 
 import json
+import tempfile
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ebus_env.agents.evaluate import evaluate
@@ -75,13 +77,17 @@ def test_a_tiny_ppo_run_learns_saves_loads_and_is_evaluated(tmp_path):
     assert np.isfinite(scores.mean("reward")) and scores.mean("distance_km") > 0
 
 
-def test_training_stops_at_its_time_limit_and_records_what_it_did(tmp_path):
+def test_training_stops_at_its_time_limit_and_records_what_it_did(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where SB3 would put a stray log
     cfg = PPOConfig.load(total_steps=1_000_000, num_envs=4, n_steps=32, batch_size=64,
                          n_epochs=1, env_overrides={"service_h": 0.3}, time_limit_min=0.02)
     out = train(cfg, tmp_path / "run")
     done = json.loads((out / "training.json").read_text())
     assert 0 < done["steps"] < cfg.total_steps and done["wall_s"] < 30
     assert (out / "model.zip").exists()
+    curve = pd.read_csv(out / "progress.csv")
+    assert len(curve) >= 1 and curve["time/total_timesteps"].iloc[-1] <= done["steps"]
+    assert not list(tmp_path.glob("SB3-*"))
 
 
 def test_the_shipped_agent_still_beats_the_best_rule_on_held_out_days():

@@ -2,8 +2,10 @@
 loads a trained agent for the evaluator.
 
 ``ebus train --config configs/agents/ppo.yaml`` writes into ``--out`` (``runs/ppo``):
-``model.zip`` and ``vecnormalize.pkl`` (the agent), ``checkpoints/``, ``tb/`` (TensorBoard:
-``tensorboard --logdir runs/ppo/tb``) and ``config.json``. Training days are drawn from the
+``model.zip`` and ``vecnormalize.pkl`` (the agent), ``checkpoints/``, ``progress.csv`` (the
+training curve: one row per update with stable-baselines3's losses, episode returns and fps; also
+TensorBoard event files when tensorboard is installed: ``tensorboard --logdir runs/ppo``) and
+``config.json``. Training days are drawn from the
 generators seeded ``seed + i``; the evaluator's held-out days use seeds from 10,000.
 """
 
@@ -85,6 +87,7 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
 
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
     out = Path(out_dir)
@@ -94,12 +97,15 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
     venv.seed(cfg.seed)
     if cfg.normalize:
         venv = VecNormalize(venv, gamma=cfg.gamma)
-    tensorboard = str(out / "tb") if importlib.util.find_spec("tensorboard") else None
     model = PPO("MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
                 n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
                 gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef, seed=cfg.seed,
                 policy_kwargs={"net_arch": list(cfg.net_arch), "log_std_init": cfg.log_std_init},
-                tensorboard_log=tensorboard, device="cpu", verbose=0)
+                device="cpu", verbose=0)
+    # Our own logger: the curve lands next to the agent, and stable-baselines3 does not leave
+    # an empty SB3-<time> folder in the system's temp directory on every run.
+    formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
+    model.set_logger(configure(str(out), formats))
     callbacks = [CheckpointCallback(max(cfg.checkpoint_every // cfg.num_envs, 1),
                                     str(out / "checkpoints"), name_prefix="ppo",
                                     save_vecnormalize=cfg.normalize)]
