@@ -375,8 +375,9 @@ def diagnose(
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
 ):
-    """Where the model fails against measurements, which effect is missing, and the error
-    before and after adding it."""
+    """Where the model fails against measurements, and which effect is missing.
+
+    Shows the error before and after adding each effect (--add), re-calibrated each time."""
     _run(lambda: _diagnose(logs, bus, with_, without, overlay, calibrate, add, html,
                            json_path, window_s, config, seed, columns, gaps, fill,
                            not no_unit_check))
