@@ -47,12 +47,14 @@ def vector_rate(venv, steps: int, seed: int) -> float:
 def ppo_rate(num_envs: int, steps: int) -> float:
     """PPO (stable-baselines3 defaults, n_steps 128) env steps per second of learn()."""
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecMonitor
 
     from ebus_env.envs.sb3 import SB3VecEnv
 
     venv = VecMonitor(SB3VecEnv(num_envs=num_envs))
     model = PPO("MlpPolicy", venv, n_steps=128, batch_size=256, seed=0, device="cpu")
+    model.set_logger(Logger(None, []))  # no output (and no SB3-<time> folder in /tmp)
     t0 = time.perf_counter()
     model.learn(steps)
     return steps / (time.perf_counter() - t0)

@@ -86,7 +86,8 @@ def test_vector_env_checks_actions_and_seeds():
         venv.reset(seed=[1, 2])
 
 
-def test_stable_baselines3_ppo_runs_on_the_adapter_and_reloads(tmp_path):
+def test_stable_baselines3_ppo_runs_on_the_adapter_and_reloads(tmp_path, monkeypatch):
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path))  # not a stray SB3-<time> folder in /tmp
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor
 
