@@ -2,11 +2,11 @@
 loads a trained agent for the evaluator.
 
 ``ebus train --config configs/agents/ppo.yaml`` writes into ``--out`` (``runs/ppo``):
-``model.zip`` and ``vecnormalize.pkl`` (the agent), ``checkpoints/``, ``progress.csv`` (the
-training curve: one row per update with stable-baselines3's losses, episode returns and fps; also
-TensorBoard event files when tensorboard is installed: ``tensorboard --logdir runs/ppo``) and
-``config.json``. Training days are drawn from the
-generators seeded ``seed + i``; the evaluator's held-out days use seeds from 10,000.
+``model.zip`` and ``vecnormalize.pkl`` (the agent), ``checkpoints/``, ``config.json`` and
+``progress.csv``, the training curve: one row per update with stable-baselines3's losses, fps
+and, once days have ended, episode returns (TensorBoard event files too when tensorboard is
+installed: ``tensorboard --logdir runs/ppo``). Training days are drawn from the generators
+seeded ``seed + i``; the evaluator's held-out days use seeds from 10,000.
 """
 
 from __future__ import annotations
