@@ -48,7 +48,7 @@ def _step_parts(layout):
     indent = min(len(line) - len(line.lstrip()) for line in body)
     statements: list[list[str]] = []
     for line in (line[indent:] for line in body):
-        if statements and (line.startswith((" ", "else", "elif"))):
+        if statements and line.startswith((" ", "else", "elif")):
             statements[-1].append(line)
         else:
             statements.append([line])
