@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from ebus_env.config import load_bus  # noqa: E402
 from ebus_env.cycles import service_day  # noqa: E402
+from ebus_env.model import codegen  # noqa: E402
 
 FASTSIM_DAY_S = 8.0
 rows: list[tuple[str, str, str]] = []
@@ -111,12 +112,18 @@ def batch(hours: float, sizes, repeat: int) -> None:
             low, high = model.bounds[model.param_index(name)]
             params[:, model.param_index(name)] = rng.uniform(low, high, n)
         for threads in (1, 2):
-            walls: list[float] = []
-            median_time(lambda p=params, th=threads, w=walls: w.append(model.simulate_batch(
-                day, p, soc_start=0.95, threads=th).wall_time_s), repeat)
-            t = statistics.median(walls)
-            row(f"batch of {n} parameter sets, {threads} thread(s)", f"{t:.2f} s",
-                f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
+            # SIMD lanes apply from codegen.LANES buses per thread; both ways in turn
+            ways = (True, False) if n >= threads * codegen.LANES else (False,)
+            walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
+            for _ in range(repeat):
+                for lanes in ways:
+                    walls[lanes].append(model.simulate_batch(
+                        day, params, soc_start=0.95, threads=threads, lanes=lanes).wall_time_s)
+            for lanes in ways:
+                t = statistics.median(walls[lanes])
+                how = "in SIMD lanes" if lanes else "one by one"
+                row(f"batch of {n} parameter sets, {threads} thread(s), {how}", f"{t:.2f} s",
+                    f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
         calibration_pass(model, day, params, repeat)
 
 
@@ -161,7 +168,7 @@ def main() -> None:
     print(f"ebus-env core benchmark on {os.cpu_count()} CPUs ({'smoke' if args.smoke else 'full'})")
     if args.smoke:
         single_bus(1.0, 3)
-        batch(0.5, (11,), 1)
+        batch(0.2, (11, 128), 1)
         memory((0.2, 1.0))
         return
     compile_times()
