@@ -112,8 +112,8 @@ def batch(hours: float, sizes, repeat: int) -> None:
             low, high = model.bounds[model.param_index(name)]
             params[:, model.param_index(name)] = rng.uniform(low, high, n)
         for threads in (1, 2):
-            # SIMD lanes apply from codegen.LANES buses per thread; both ways in turn
-            ways = (True, False) if n >= threads * codegen.LANES else (False,)
+            # SIMD lanes apply from codegen.LANES_MIN buses per thread; both ways in turn
+            ways = (True, False) if n >= threads * codegen.LANES_MIN else (False,)
             walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
             for _ in range(repeat):
                 for lanes in ways:

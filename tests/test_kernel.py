@@ -57,9 +57,9 @@ def test_batch_equals_each_member_alone(model12, mixed_profile):
 
 
 def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
-    """64 or more buses on the same input rows run in SIMD lanes (``run_lanes``): the same
-    results to the last bit, through ``simulate_batch`` on two threads (each a group of 64 in
-    lanes and the rest one by one) and called directly with a partial last group."""
+    """Buses on the same input rows run in SIMD lanes (``run_lanes``): the same results to the
+    last bit, through ``simulate_batch`` on two threads and called directly, with spare lanes
+    in the last group."""
     short = mixed_profile.slice(0, 3000)  # 5 minutes, the layover on the charger included
     rows = candidate_rows(model12, 150, seed=3)
     lanes = model12.simulate_batch(short, rows, soc_start=0.85, threads=2)
@@ -68,7 +68,7 @@ def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
     np.testing.assert_array_equal(lanes.accumulators, scalar.accumulators)
     assert np.ptp(lanes.final("soc_frac")) > 1e-3 and np.ptp(lanes.final("cabin_temp_degc")) > 1.0
 
-    n = 70  # one whole group and one of 6 buses with 58 spare lanes
+    n = 70  # two groups of 36 lanes, the second with 2 spare
     params = model12.param_matrix(rows[:n])
     inputs = model12.input_array(short)[None]
     state0 = lanes.initial_states[:n]
@@ -81,10 +81,10 @@ def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
         results[variant] = states, acc
     np.testing.assert_array_equal(results["run_lanes"][0], results["run"][0])
     np.testing.assert_array_equal(results["run_lanes"][1], results["run"][1])
-    # lanes only where every bus reads the same rows and each thread has a whole group
+    # lanes only where every bus reads the same rows and each thread has enough buses
     same = (np.zeros(n, np.int64), np.zeros(n, np.int64), np.full(n, 9))
-    assert model12._shared_rows(*same, [0, n])
-    assert not model12._shared_rows(*same, [0, 35, n])
+    assert model12._shared_rows(*same, [0, 35, n])
+    assert not model12._shared_rows(*same, [0, 5, n])
     assert not model12._shared_rows(same[0], same[1], np.r_[np.full(n - 1, 9), 8], [0, n])
     assert not model12._shared_rows(np.r_[np.zeros(n - 1, np.int64), 1], same[1], same[2], [0, n])
 

@@ -7,7 +7,7 @@ machine-code loop: a user's effect runs at the same speed as a built-in one. Fou
 generated from the same step: ``run`` (no recording: nothing beyond the states and energy sums
 stays live, which keeps the loop in registers), ``run_record`` (keeps a trace), ``run_sample``
 (calibration: only the SoC at the rows a log has samples, no energy sums) and ``run_lanes``
-(``run`` for buses that share their input rows, ``LANES`` at a time in SIMD lanes).
+(``run`` for buses that share their input rows, many at a time in SIMD lanes).
 
 The source is written to ``$EBUS_CACHE_DIR`` (default ``~/.cache/ebus_env/kernels``) under a
 name that hashes the source, the effects' source files and the library versions, and compiled
@@ -339,9 +339,15 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str)
 
 
 
-LANES = 64
-"""Buses per group of ``run_lanes``. Measured on a 12 m bus (one thread, against the scalar
-loop): 64 and 128 lanes a third faster, 16 and 32 lanes no faster."""
+LANES_MAX = 64
+LANES_MIN = 12
+"""``run_lanes`` advances its buses in groups of at most ``LANES_MAX`` lanes, of equal width
+and a multiple of 4 (AVX2: four float64 per instruction); below ``LANES_MIN`` buses it is not
+faster than ``run`` by much. Measured on a 12 m bus, one thread, against ``run`` (two runs):
+12 buses -16 and -27 %, 16 to 275 buses -28 to -34 %, 8 and 11 buses (8 and 12 lanes) -7 and
+-6 %, and 11 lanes +21 % (the remainder of 3 runs scalar). The width is not known to the
+compiler, on purpose: written as the literal 32 the same loop took 53.7 against 39.5 ns per
+bus-step (its machine code is not larger; the cause was not found)."""
 
 
 class _ToLanes(ast.NodeTransformer):
@@ -361,7 +367,7 @@ class _ToLanes(ast.NodeTransformer):
 
 def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
     """``run_lanes``: the plain loop for buses that share their input rows (``input_set``,
-    ``step0`` and ``n_steps`` of ``bus_lo`` hold for all), in groups of ``LANES``, with one
+    ``step0`` and ``n_steps`` of ``bus_lo`` hold for all), in groups (``LANES_MAX``), with one
     loop over the lanes per statement of the step. Same arguments and results as ``run``, to
     the last bit.
 
@@ -398,18 +404,22 @@ def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
              for j, (_, expr, how) in enumerate(extremes, start=n_sum)]
     each += [f"{s} = {s}_next" for s in layout.states]
 
-    g = f"for g in range({LANES}):"
+    g = "for g in range(lanes):"
     i2, i3, i4 = (" " * n for n in (8, 12, 16))
     out = [
         "",
         "",
         "def run_lanes(params, states, inputs, input_set, step0, n_steps, dt_s, record_every, "
         "record_sel, record_out, sample_mask, acc, bus_lo, bus_hi):",
-        f"    W = np.zeros(({len(rows)}, {LANES}))",
-        f"    P = np.empty(({len(params)}, {LANES}))",
-        f"    S = np.empty(({n_acc}, {LANES}))",
+        "    if bus_hi <= bus_lo:",
+        "        return",
+        f"    groups = -(-(bus_hi - bus_lo) // {LANES_MAX})",
+        "    lanes = -(-(bus_hi - bus_lo) // (4 * groups)) * 4  # equal groups, 4 lanes a vector",
+        f"    W = np.zeros(({len(rows)}, lanes))",
+        f"    P = np.empty(({len(params)}, lanes))",
+        f"    S = np.empty(({n_acc}, lanes))",
         "    inp = inputs[input_set[bus_lo]]",
-        f"    for c in range(bus_lo, bus_hi, {LANES}):",
+        "    for c in range(bus_lo, bus_hi, lanes):",
         f"{i2}{g}",
         f"{i3}b = min(c + g, bus_hi - 1)",
         f"{i3}for j in range({len(params)}):",
@@ -426,7 +436,7 @@ def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
     out += [f"{i3}{ch} = inp[{j}, row]" for j, ch in enumerate(layout.inputs)]
     for st in each:
         out += [f"{i3}{g}"] + lane(st, i4)
-    out += [f"{i2}for g in range(min({LANES}, bus_hi - c)):", f"{i3}b = c + g"]
+    out += [f"{i2}for g in range(min(lanes, bus_hi - c)):", f"{i3}b = c + g"]
     out += [f"{i3}states[b, {j}] = W[{rows[s]}, g]" for j, s in enumerate(layout.states)]
     out += [f"{i3}acc[b, {j}] += S[{j}, g] * dt_s" for j in range(n_sum)]
     out += [f"{i3}acc[b, {j}] = S[{j}, g]" for j in range(n_sum, n_acc)]

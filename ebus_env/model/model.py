@@ -281,9 +281,9 @@ class Model:
             at least 50,000 bus-steps)
         python : run the uncompiled Python version of the same code
         lanes : when all buses read the same input rows (a batch of parameter sets) and each
-            thread has at least ``codegen.LANES`` of them, advance them in groups with the
-            SIMD lane kernel (``run_lanes``: the same results to the last bit, a third less
-            time; compiled on first use, 10-15 s, then cached on disk)
+            thread has at least ``codegen.LANES_MIN`` of them, advance them in groups with the
+            SIMD lane kernel (``run_lanes``: the same results to the last bit, about a third
+            less time; compiled on first use, about 12 s, then cached on disk)
 
         Returns
         -------
@@ -338,23 +338,15 @@ class Model:
         threads = min(threads, n_bus) if steps.sum() >= 50_000 else 1
         edges = np.linspace(0, n_bus, threads + 1).astype(int).tolist()
         if lanes and variant == "run" and self._shared_rows(input_set, step0, steps, edges):
-            # whole groups of codegen.LANES buses in SIMD lanes, the rest one by one
-            lane_kernel = self.kernel("run_lanes")
-
-            def chunk(lo, hi):
-                mid = lo + (hi - lo) // codegen.LANES * codegen.LANES
-                lane_kernel(*args, lo, mid)
-                kernel(*args, mid, hi)
-            run_chunks(chunk, edges)
-        else:
-            run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
+            kernel = self.kernel("run_lanes")  # groups of buses in SIMD lanes
+        run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
         return acc
 
     @staticmethod
     def _shared_rows(input_set, step0, steps, edges) -> bool:
         """Whether the lane kernel applies: every bus reads the same input rows and each
-        thread has at least one whole group of buses."""
-        return (min(np.diff(edges)) >= codegen.LANES and (input_set == input_set[0]).all()
+        thread has at least ``codegen.LANES_MIN`` buses."""
+        return (min(np.diff(edges)) >= codegen.LANES_MIN and (input_set == input_set[0]).all()
                 and (step0 == step0[0]).all() and (steps == steps[0]).all())
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
