@@ -137,10 +137,19 @@ def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
     mask = np.zeros(day.n_steps, bool)
     mask[::round(1.0 / model.dt_s)] = True
     soc = np.zeros((n, int(mask.sum()), 1), np.float32)
-    t = median_time(lambda: model.run(params, states.copy(), inputs, sample_mask=mask,
-                                      record_out=soc, threads=2), repeat)
-    row("  as calibration runs them (SoC at 1 Hz only), 2 threads", f"{t:.2f} s",
-        f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
+    ways = (True, False) if n >= 2 * codegen.LANES_MIN else (False,)
+    walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
+    for _ in range(repeat):
+        for lanes in ways:
+            t0 = time.perf_counter()
+            model.run(params, states.copy(), inputs, sample_mask=mask, record_out=soc, threads=2,
+                      lanes=lanes)
+            walls[lanes].append(time.perf_counter() - t0)
+    for lanes in ways:
+        t = statistics.median(walls[lanes])
+        how = "in SIMD lanes" if lanes else "one by one"
+        row(f"  as calibration (SoC at 1 Hz only), 2 threads, {how}", f"{t:.2f} s",
+            f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
 
 
 def memory(model_hours=(1.35, 13.5)) -> None:

@@ -62,8 +62,8 @@ def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
     in the last group."""
     short = mixed_profile.slice(0, 3000)  # 5 minutes, the layover on the charger included
     rows = candidate_rows(model12, 150, seed=3)
-    lanes = model12.simulate_batch(short, rows, soc_start=0.85, threads=2)
-    scalar = model12.simulate_batch(short, rows, soc_start=0.85, threads=2, lanes=False)
+    lanes = model12.simulate_batch(short, rows, soc_start=0.85, threads=2, lanes=True)
+    scalar = model12.simulate_batch(short, rows, soc_start=0.85, threads=2)
     np.testing.assert_array_equal(lanes.final_states, scalar.final_states)
     np.testing.assert_array_equal(lanes.accumulators, scalar.accumulators)
     assert np.ptp(lanes.final("soc_frac")) > 1e-3 and np.ptp(lanes.final("cabin_temp_degc")) > 1.0
@@ -81,6 +81,16 @@ def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
         results[variant] = states, acc
     np.testing.assert_array_equal(results["run_lanes"][0], results["run"][0])
     np.testing.assert_array_equal(results["run_lanes"][1], results["run"][1])
+    # as calibration runs them: SoC at 1 Hz rows only, 15 buses a thread (16 lanes, 1 spare)
+    mask = np.zeros(inputs.shape[2], np.bool_)
+    mask[::10] = True
+    soc = {}
+    for lanes_on in (True, False):
+        soc[lanes_on] = np.zeros((30, 250, 1), np.float32)
+        model12.run(params[:30], state0[:30].copy(), inputs, step0=np.full(30, 500), n_steps=2500,
+                    sample_mask=mask, record_out=soc[lanes_on], threads=2, lanes=lanes_on)
+    np.testing.assert_array_equal(soc[True], soc[False])
+    assert np.ptp(soc[True][:, -1, 0]) > 1e-3
     # lanes only where every bus reads the same rows and each thread has enough buses
     same = (np.zeros(n, np.int64), np.zeros(n, np.int64), np.full(n, 9))
     assert model12._shared_rows(*same, [0, 35, n])

@@ -304,8 +304,10 @@ class CalibrationProblem:
                 d.anchor(a, states, self.soc_index)
                 in_chunk = (d.rows >= a) & (d.rows < b)
                 out = np.zeros((len(alive), int(in_chunk.sum()), 1), np.float32)
+                # a large population runs in SIMD lanes (its compile pays over the iterations)
                 self.model.run(matrix[alive], states, d.inputs, step0=np.full(len(alive), a),
-                               n_steps=b - a, record_out=out, sample_mask=d.mask, acc=acc)
+                               n_steps=b - a, record_out=out, sample_mask=d.mask, acc=acc,
+                               lanes=True)
                 self.simulated_steps += len(alive) * (b - a)
                 err = out[:, :, 0].astype(float) - d.measured[in_chunk]
                 sse[alive] += np.sum(err * err, axis=1)

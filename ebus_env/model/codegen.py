@@ -3,11 +3,12 @@
 The chosen effects are stitched into the skeleton of :mod:`ebus_env.model.template` as one flat
 Python function that loops over buses and time steps. Effect functions are called by name with
 their parameters unpacked into locals, so numba compiles (and inlines) everything into one
-machine-code loop: a user's effect runs at the same speed as a built-in one. Four variants are
+machine-code loop: a user's effect runs at the same speed as a built-in one. Five variants are
 generated from the same step: ``run`` (no recording: nothing beyond the states and energy sums
 stays live, which keeps the loop in registers), ``run_record`` (keeps a trace), ``run_sample``
-(calibration: only the SoC at the rows a log has samples, no energy sums) and ``run_lanes``
-(``run`` for buses that share their input rows, many at a time in SIMD lanes).
+(calibration: only the SoC at the rows a log has samples, no energy sums), and ``run_lanes``
+and ``run_sample_lanes``: ``run`` and ``run_sample`` for buses that share their input rows,
+many at a time in SIMD lanes.
 
 The source is written to ``$EBUS_CACHE_DIR`` (default ``~/.cache/ebus_env/kernels``) under a
 name that hashes the source, the effects' source files and the library versions, and compiled
@@ -260,7 +261,8 @@ def generate(comp: Composition) -> Layout:
         header + _loop("run", layout, w.lines, sums, extremes, "plain")
         + _loop("run_record", layout, w.lines, sums, extremes, "record")
         + _loop("run_sample", layout, w.lines, sums, extremes, "sample")
-        + _lane_loop(layout, w.lines, sums, extremes)) + "\n"
+        + _lane_loop("run_lanes", layout, w.lines, sums, extremes, "plain")
+        + _lane_loop("run_sample_lanes", layout, w.lines, sums, extremes, "sample")) + "\n"
     return layout
 
 
@@ -365,11 +367,11 @@ class _ToLanes(ast.NodeTransformer):
         return ast.copy_location(ast.Subscript(ast.Name(array, ast.Load()), index, node.ctx), node)
 
 
-def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
-    """``run_lanes``: the plain loop for buses that share their input rows (``input_set``,
-    ``step0`` and ``n_steps`` of ``bus_lo`` hold for all), in groups (``LANES_MAX``), with one
-    loop over the lanes per statement of the step. Same arguments and results as ``run``, to
-    the last bit.
+def _lane_loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str) -> list[str]:
+    """``run_lanes`` (``mode`` plain) or ``run_sample_lanes`` (sample): the loop for buses that
+    share their input rows (``input_set``, ``step0`` and ``n_steps`` of ``bus_lo`` hold for
+    all), in groups (``LANES_MAX``), with one loop over the lanes per statement of the step.
+    Same arguments and results as ``run`` or ``run_sample``, to the last bit.
 
     Every variable of the step is a row of the scratch array ``W[variable, lane]``, every
     parameter a row of ``P``: loops that simple compile to SIMD code (4 lanes per AVX2
@@ -399,17 +401,18 @@ def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
         else:
             each.append(ast.unparse(st))
     n_sum, n_acc = len(sums), len(sums) + len(extremes)
-    each += [f"S[{j}, g] += {expr}" for j, (_, expr) in enumerate(sums)]
+    summed = range(n_sum if mode == "plain" else 0)  # calibration needs no energies
+    each += [f"S[{j}, g] += {sums[j][1]}" for j in summed]
     each += [f"S[{j}, g] = {how}(S[{j}, g], {expr})"
              for j, (_, expr, how) in enumerate(extremes, start=n_sum)]
-    each += [f"{s} = {s}_next" for s in layout.states]
+    advance = [f"{s} = {s}_next" for s in layout.states]
 
     g = "for g in range(lanes):"
     i2, i3, i4 = (" " * n for n in (8, 12, 16))
     out = [
         "",
         "",
-        "def run_lanes(params, states, inputs, input_set, step0, n_steps, dt_s, record_every, "
+        f"def {name}(params, states, inputs, input_set, step0, n_steps, dt_s, record_every, "
         "record_sel, record_out, sample_mask, acc, bus_lo, bus_hi):",
         "    if bus_hi <= bus_lo:",
         "        return",
@@ -426,21 +429,30 @@ def _lane_loop(layout: Layout, body: list[str], sums, extremes) -> list[str]:
         f"{i4}P[j, g] = params[b, j]",
     ]
     out += [f"{i3}W[{rows[s]}, g] = states[b, {j}]" for j, s in enumerate(layout.states)]
-    out += [f"{i3}S[{j}, g] = 0.0" for j in range(n_sum)]
+    out += [f"{i3}S[{j}, g] = 0.0" for j in summed]
     out += [f"{i3}S[{j}, g] = acc[b, {j}]" for j in range(n_sum, n_acc)]
     for st in once:
         out += [f"{i2}{g}"] + lane(st, i3)
+    out += [f"{i2}r = 0"] if mode == "sample" else []
     out += [f"{i2}for k in range(n_steps[bus_lo]):",
             f"{i3}row = step0[bus_lo] + k",
             f"{i3}time_s = row * dt_s"]
     out += [f"{i3}{ch} = inp[{j}, row]" for j, ch in enumerate(layout.inputs)]
     for st in each:
         out += [f"{i3}{g}"] + lane(st, i4)
+    if mode == "sample":
+        out += [f"{i3}if sample_mask[row]:",
+                f"{i4}for g in range(min(lanes, bus_hi - c)):",
+                f"{i4}    record_out[c + g, r, 0] = W[{rows['soc_frac']}, g]",
+                f"{i4}r += 1"]
+    for st in advance:
+        out += [f"{i3}{g}"] + lane(st, i4)
     out += [f"{i2}for g in range(min(lanes, bus_hi - c)):", f"{i3}b = c + g"]
     out += [f"{i3}states[b, {j}] = W[{rows[s]}, g]" for j, s in enumerate(layout.states)]
-    out += [f"{i3}acc[b, {j}] += S[{j}, g] * dt_s" for j in range(n_sum)]
+    out += [f"{i3}acc[b, {j}] += S[{j}, g] * dt_s" for j in summed]
     out += [f"{i3}acc[b, {j}] = S[{j}, g]" for j in range(n_sum, n_acc)]
     return out
+
 
 # -- binding and compilation --------------------------------------------------------------
 _EFFECTS_BY_NAME: dict[str, Effect] = {}
@@ -502,8 +514,9 @@ def _register_effects(comp: Composition) -> None:
 
 def compile_kernel(comp: Composition, layout: Layout):
     """Import the generated module with its loops jitted (``run_compiled``,
-    ``run_record_compiled``, ``run_sample_compiled``, ``run_lanes_compiled``); each compiles,
-    or loads from the disk cache, on first call."""
+    ``run_record_compiled``, ``run_sample_compiled``, ``run_lanes_compiled``,
+    ``run_sample_lanes_compiled``); each compiles, or loads from the disk cache, on first
+    call."""
     key = kernel_key(comp, layout.source)
     with _LOCK:
         _register_effects(comp)
@@ -518,7 +531,7 @@ def compile_kernel(comp: Composition, layout: Layout):
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        for name in ("run", "run_record", "run_sample", "run_lanes"):
+        for name in ("run", "run_record", "run_sample", "run_lanes", "run_sample_lanes"):
             jitted = numba.njit(cache=True, nogil=True, error_model="numpy")(getattr(module, name))
             setattr(module, name + "_compiled", jitted)
         sys.modules[module_name] = module

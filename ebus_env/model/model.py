@@ -237,8 +237,8 @@ class Model:
 
     # -- running ----------------------------------------------------------------------------
     def kernel(self, variant: str = "run"):
-        """A compiled loop: ``run``, ``run_record``, ``run_sample`` or ``run_lanes`` (compiled,
-        or loaded from the disk cache, on first call)."""
+        """A compiled loop: ``run``, ``run_record``, ``run_sample``, ``run_lanes`` or
+        ``run_sample_lanes`` (compiled, or loaded from the disk cache, on first call)."""
         if self._kernel is None:
             self._kernel = codegen.compile_kernel(self.composition, self.layout)
         return getattr(self._kernel, variant + "_compiled")
@@ -261,7 +261,7 @@ class Model:
             n_steps: int | np.ndarray | None = None, record_every: int = 0,
             record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
             acc: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
-            threads: int | None = None, python: bool = False, lanes: bool = True) -> np.ndarray:
+            threads: int | None = None, python: bool = False, lanes: bool = False) -> np.ndarray:
         """Advance N buses by ``n_steps`` from ``states`` (updated in place).
 
         Parameters
@@ -282,8 +282,10 @@ class Model:
         python : run the uncompiled Python version of the same code
         lanes : when all buses read the same input rows (a batch of parameter sets) and each
             thread has at least ``codegen.LANES_MIN`` of them, advance them in groups with the
-            SIMD lane kernel (``run_lanes``: the same results to the last bit, about a third
-            less time; compiled on first use, about 12 s, then cached on disk)
+            SIMD lane kernel (``run_lanes``, ``run_sample_lanes``: the same results to the last
+            bit, a quarter to a third less time). Off by default: it compiles on first use
+            (about 12 s per model, then cached on disk), which pays for repeated or large runs
+            only
 
         Returns
         -------
@@ -337,8 +339,8 @@ class Model:
         # split the buses over threads when there is enough work to pay for the hand-off
         threads = min(threads, n_bus) if steps.sum() >= 50_000 else 1
         edges = np.linspace(0, n_bus, threads + 1).astype(int).tolist()
-        if lanes and variant == "run" and self._shared_rows(input_set, step0, steps, edges):
-            kernel = self.kernel("run_lanes")  # groups of buses in SIMD lanes
+        if lanes and variant != "run_record" and self._shared_rows(input_set, step0, steps, edges):
+            kernel = self.kernel(variant + "_lanes")  # groups of buses in SIMD lanes
         run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
         return acc
 
@@ -394,7 +396,7 @@ class Model:
 
     def simulate_batch(self, profile: Profile, params, soc_start: float | None = None,
                        record: Sequence[str] = (), record_every: int = 10,
-                       threads: int | None = None, lanes: bool = True):
+                       threads: int | None = None, lanes: bool = False):
         """Run N parameter sets through the same profile in one batched call.
 
         ``params`` is an (N, n_params) matrix or a list of override mappings. ``record`` names
