@@ -340,7 +340,6 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str)
     return out
 
 
-
 LANES_MAX = 64
 LANES_MIN = 12
 """``run_lanes`` advances its buses in groups of at most ``LANES_MAX`` lanes, of equal width
@@ -349,7 +348,7 @@ faster than ``run`` by much. Measured on a 12 m bus, one thread, against ``run``
 12 buses -16 and -27 %, 16 to 275 buses -28 to -34 %, 8 and 11 buses (8 and 12 lanes) -7 and
 -6 %, and 11 lanes +21 % (the remainder of 3 runs scalar). The width is not known to the
 compiler, on purpose: written as the literal 32 the same loop took 53.7 against 39.5 ns per
-bus-step (its machine code is not larger; the cause was not found)."""
+bus-step (its machine code is shorter, not longer; the cause was not found)."""
 
 
 class _ToLanes(ast.NodeTransformer):
@@ -383,10 +382,10 @@ def _lane_loop(name: str, layout: Layout, body: list[str], sums, extremes, mode:
     stored = [n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)]
     rows = {n: j for j, n in enumerate(dict.fromkeys([*layout.states, *stored]))}
     params = {_param_local(e, p): j for j, (e, p) in enumerate(layout.params)}
-    lanes = _ToLanes(rows, params)
+    to_lanes = _ToLanes(rows, params)
 
     def lane(code: str, indent: str) -> list[str]:
-        return [indent + line for line in ast.unparse(lanes.visit(ast.parse(code))).splitlines()]
+        return [indent + line for line in ast.unparse(to_lanes.visit(ast.parse(code))).splitlines()]
 
     # once per group: assignments that read no variable but earlier such results
     fixed: set[str] = set()
