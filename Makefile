@@ -25,7 +25,7 @@ bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/bench_core.py
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check ebus_env tests benchmarks
+	$(VENV)/bin/ruff check ebus_env tests benchmarks examples
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

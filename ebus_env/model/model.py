@@ -386,6 +386,8 @@ class Model:
         record_out = None
         if record:
             record_out = np.zeros((1, -(-n // record_every), len(self.trace_names)), np.float32)
+        if not python:
+            self.compile(record=record)  # the wall time below is the run's, not the JIT's
         t0 = time.perf_counter()
         acc = self.run(vec[None, :], states, inputs, record_every=record_every if record else 0,
                        record_out=record_out, python=python)
