@@ -243,17 +243,21 @@ class Model:
             self._kernel = codegen.compile_kernel(self.composition, self.layout)
         return getattr(self._kernel, variant + "_compiled")
 
-    def compile(self, record: bool = False, sample: bool = False) -> float:
-        """Compile now (or load from the disk cache); returns the seconds it took."""
+    def compile(self, record: bool = False, sample: bool = False, lanes: bool = False) -> float:
+        """Compile now (or load from the disk cache) the loop a run with these options uses;
+        returns the seconds it took. ``lanes``: the SIMD lane loop (about 12 s per model on
+        an empty cache)."""
         t0 = time.perf_counter()
-        n_trace = len(self.trace_names)
-        args = (self.params[None, :], self.initial_state(self.params, {})[None, :],
+        n_bus = codegen.LANES_MIN if lanes else 1  # enough buses for run() to choose lanes
+        args = (np.repeat(self.params[None, :], n_bus, axis=0),
+                np.repeat(self.initial_state(self.params, {})[None, :], n_bus, axis=0),
                 np.zeros((1, len(self.input_names), 2)))
-        self.run(*args, n_steps=1, record_every=1 if record else 0,
-                 record_out=np.zeros((1, 1, n_trace), np.float32) if record else None)
+        trace = np.zeros((n_bus, 1, len(self.trace_names)), np.float32) if record else None
+        self.run(*args, n_steps=1, record_every=1 if record else 0, record_out=trace, threads=1,
+                 lanes=lanes)
         if sample:
             self.run(*args, n_steps=1, sample_mask=np.ones(2, bool),
-                     record_out=np.zeros((1, 1, 1), np.float32))
+                     record_out=np.zeros((n_bus, 1, 1), np.float32), threads=1, lanes=lanes)
         return time.perf_counter() - t0
 
     def run(self, params: np.ndarray, states: np.ndarray, inputs: np.ndarray,
@@ -387,7 +391,7 @@ class Model:
         if record:
             record_out = np.zeros((1, -(-n // record_every), len(self.trace_names)), np.float32)
         if not python:
-            self.compile(record=record)  # the wall time below is the run's, not the JIT's
+            self.compile(record=record)  # the wall time is the run's, not the JIT's
         t0 = time.perf_counter()
         acc = self.run(vec[None, :], states, inputs, record_every=record_every if record else 0,
                        record_out=record_out, python=python)
@@ -419,6 +423,8 @@ class Model:
         sel = np.array([self.trace_names.index(n) for n in record], dtype=np.int64)
         n = inputs.shape[1]
         out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
+        # the wall time is the run's, not the JIT's
+        self.compile(record=len(sel) > 0, lanes=lanes and len(matrix) >= codegen.LANES_MIN)
         t0 = time.perf_counter()
         acc = self.run(matrix, states, inputs, record_every=record_every if len(sel) else 0,
                        record_sel=sel, record_out=out, threads=threads, lanes=lanes)
