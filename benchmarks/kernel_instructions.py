@@ -7,7 +7,7 @@ Timings on a shared VM drift by 30 % within an hour; an instruction count does n
 runs itself under valgrind's callgrind with ``--dump-instr=yes``, reads the cost of every
 instruction address inside the kernel's machine code (dumped by the child, since JIT code has
 no symbols), and prints instructions per bus-step with a breakdown by opcode. Fewer
-instructions are not always less time (README, "Where the time goes"), so confirm a change
+instructions are not always less time (docs/performance.md), so confirm a change
 with timings taken in one run. Needs valgrind and objdump on the PATH; not run in CI. The
 first run takes longer: numba compiles the kernel again for valgrind's virtual CPU.
 """
