@@ -112,44 +112,44 @@ def batch(hours: float, sizes, repeat: int) -> None:
             low, high = model.bounds[model.param_index(name)]
             params[:, model.param_index(name)] = rng.uniform(low, high, n)
         for threads in (1, 2):
-            # SIMD lanes apply from codegen.LANES_MIN buses per thread; both ways in turn
-            ways = (True, False) if n >= threads * codegen.LANES_MIN else (False,)
-            walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
-            for _ in range(repeat):
-                for lanes in ways:
-                    walls[lanes].append(model.simulate_batch(
-                        day, params, soc_start=0.95, threads=threads, lanes=lanes).wall_time_s)
-            for lanes in ways:
-                t = statistics.median(walls[lanes])
-                how = "in SIMD lanes" if lanes else "one by one"
-                row(f"batch of {n} parameter sets, {threads} thread(s), {how}", f"{t:.2f} s",
-                    f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
+            lanes_and_scalar(f"batch of {n} parameter sets, {threads} thread(s)", n, day.n_steps,
+                             threads, repeat, lambda lanes, p=params, th=threads: model.simulate_batch(
+                                 day, p, soc_start=0.95, threads=th, lanes=lanes).wall_time_s)
         calibration_pass(model, day, params, repeat)
 
 
 def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
     """The batch as calibration runs it: SoC kept at a 1 Hz log's rows, no energy sums."""
-    model.compile(sample=True)
     n = params.shape[0]
+    model.compile(sample=True, lanes=n >= 2 * codegen.LANES_MIN)  # timed runs exclude the JIT
     inputs = model.input_array(day)
     states = np.repeat(model.initial_state(model.params, {"speed_ref_mps": 0.0}, 0.95)[None],
                        n, axis=0)
     mask = np.zeros(day.n_steps, bool)
     mask[::round(1.0 / model.dt_s)] = True
     soc = np.zeros((n, int(mask.sum()), 1), np.float32)
-    ways = (True, False) if n >= 2 * codegen.LANES_MIN else (False,)
+
+    def one(lanes: bool) -> float:
+        t0 = time.perf_counter()
+        model.run(params, states.copy(), inputs, sample_mask=mask, record_out=soc, threads=2,
+                  lanes=lanes)
+        return time.perf_counter() - t0
+
+    lanes_and_scalar("  as calibration (SoC at 1 Hz only), 2 threads", n, day.n_steps, 2, repeat, one)
+
+
+def lanes_and_scalar(what: str, n: int, n_steps: int, threads: int, repeat: int, run) -> None:
+    """Rows for ``run(lanes)`` (its wall time [s]) with SIMD lanes and one bus at a time, taken
+    in turn; lanes apply from ``codegen.LANES_MIN`` buses per thread."""
+    ways = (True, False) if n >= threads * codegen.LANES_MIN else (False,)
     walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
     for _ in range(repeat):
         for lanes in ways:
-            t0 = time.perf_counter()
-            model.run(params, states.copy(), inputs, sample_mask=mask, record_out=soc, threads=2,
-                      lanes=lanes)
-            walls[lanes].append(time.perf_counter() - t0)
+            walls[lanes].append(run(lanes))
     for lanes in ways:
         t = statistics.median(walls[lanes])
         how = "in SIMD lanes" if lanes else "one by one"
-        row(f"  as calibration (SoC at 1 Hz only), 2 threads, {how}", f"{t:.2f} s",
-            f"{1e9 * t / (n * day.n_steps):.1f} ns per bus-step")
+        row(f"{what}, {how}", f"{t:.2f} s", f"{1e9 * t / (n * n_steps):.1f} ns per bus-step")
 
 
 def memory(model_hours=(1.35, 13.5)) -> None:
