@@ -195,25 +195,40 @@ def battery_tables():
             battery.RESISTANCE_SOC.resolve().encode("r"))
 
 
+PACK = {k: BATTERY[k] for k in ("cells_series", "cells_parallel", "cell_capacity_ah",
+                                 "cell_resistance_mohm", "connection_factor",
+                                 "activation_energy_j_per_mol")}
+LIMITS = {k: BATTERY[k] for k in ("cells_series", "coulombic_efficiency", "soc_min_frac",
+                                   "soc_max_frac", "max_charge_c_rate", "max_discharge_c_rate")}
+
+
+@pytest.mark.parametrize("fn", both("rint_battery", "pack"))
+def test_battery_pack_capacity_and_resistance(fn):
+    q, r = fn(1.0, 1.0, 25.0, *PACK.values())
+    assert q == 300.0 and r == pytest.approx(1e-3 * 204 / 3 * 1.2)
+    # ageing shrinks capacity and raises resistance; cold raises resistance (Arrhenius)
+    q_aged, r_aged = fn(0.8, 1.3, 25.0, *PACK.values())
+    assert q_aged == 240.0 and r_aged == pytest.approx(1.3 * r)
+    r_cold = fn(1.0, 1.0, 0.0, *PACK.values())[1]
+    assert r_cold / r == pytest.approx(math.exp(25000 / 8.314 * (1 / 273.15 - 1 / 298.15)))
+
+
 @pytest.mark.parametrize("fn", both("rint_battery", "state"))
 def test_battery_state(fn):
     ocv_table, r_table = battery_tables()
-    ocv, r, q, charge_a, charge_w, discharge_w = fn(0.5, 1.0, 1.0, 25.0, 0.1, *BATTERY.values(),
-                                                    ocv_table, r_table)
+    r_pack = 1e-3 * 204 / 3 * 1.2
+    ocv, r, charge_a, charge_w, discharge_w = fn(0.5, 300.0, r_pack, 0.1, *LIMITS.values(),
+                                                 ocv_table, r_table)
     assert ocv == pytest.approx(204 * 3.270)  # A123 OCV at 50 %
-    assert r == pytest.approx(1e-3 * 204 / 3 * 1.2)
-    assert q == 300.0
+    assert r == pytest.approx(r_pack)  # f(50 %) = 1
     assert charge_a == 900.0 and charge_w == pytest.approx(900 * (ocv + r * 900))
     assert discharge_w == pytest.approx(1500 * (ocv - r * 1500))
-    # ageing shrinks capacity and raises resistance; cold raises resistance (Arrhenius)
-    _, r_aged, q_aged, *_ = fn(0.5, 0.8, 1.3, 25.0, 0.1, *BATTERY.values(), ocv_table, r_table)
-    assert q_aged == 240.0 and r_aged == pytest.approx(1.3 * r)
-    r_cold = fn(0.5, 1.0, 1.0, 0.0, 0.1, *BATTERY.values(), ocv_table, r_table)[1]
-    assert r_cold / r == pytest.approx(math.exp(25000 / 8.314 * (1 / 273.15 - 1 / 298.15)))
+    # the SoC factor: an empty cell has the larger resistance
+    assert fn(0.0, 300.0, r_pack, 0.1, *LIMITS.values(), ocv_table, r_table)[1] > r
     # a full pack accepts no charge; an empty one gives no power
-    assert fn(1.0, 1.0, 1.0, 25.0, 0.1, *BATTERY.values(), ocv_table, r_table)[3] == 0.0
-    empty = {**BATTERY, "soc_min_frac": 0.1}
-    assert fn(0.05, 1.0, 1.0, 25.0, 0.1, *empty.values(), ocv_table, r_table)[5] == 0.0
+    assert fn(1.0, 300.0, r_pack, 0.1, *LIMITS.values(), ocv_table, r_table)[2] == 0.0
+    empty = {**LIMITS, "soc_min_frac": 0.1}
+    assert fn(0.05, 300.0, r_pack, 0.1, *empty.values(), ocv_table, r_table)[4] == 0.0
 
 
 @pytest.mark.parametrize("fn", both("rint_battery", "update"))

@@ -75,23 +75,33 @@ BATTERY_PARAMS = (
 )
 
 
-def battery_state(soc_frac, capacity_factor, resistance_factor, battery_temp_degc, dt_s,
-                  cells_series, cells_parallel, cell_capacity_ah, cell_resistance_mohm,
-                  connection_factor, activation_energy_j_per_mol, coulombic_efficiency,
-                  soc_min_frac, soc_max_frac, max_charge_c_rate, max_discharge_c_rate,
-                  ocv_cell_v, resistance_soc_factor):
-    """OCV [V], resistance [Ohm], capacity [Ah] and the current/power limits of this step.
+def battery_pack(capacity_factor, resistance_factor, battery_temp_degc, cells_series,
+                 cells_parallel, cell_capacity_ah, cell_resistance_mohm, connection_factor,
+                 activation_energy_j_per_mol):
+    """Capacity Q [Ah] and resistance R_pack [Ohm] of the aged pack at its temperature, the
+    latter before the SoC factor: R = R_pack f(SoC).
+
+    Its own call because these change only with ageing and pack temperature: when both are
+    constant (a thermally managed pack), the lane loop computes them, and the exponential, once
+    per run instead of once per step and bus."""
+    arrhenius = math.exp(activation_energy_j_per_mol / _GAS_CONSTANT_J_PER_MOL_K
+                         * (1.0 / (battery_temp_degc + 273.15) - 1.0 / _T_REF_K))
+    capacity_ah = cell_capacity_ah * cells_parallel * capacity_factor
+    resistance_ohm = (cell_resistance_mohm * 1e-3 * cells_series / cells_parallel
+                      * connection_factor * arrhenius * resistance_factor)
+    return capacity_ah, resistance_ohm
+
+
+def battery_state(soc_frac, capacity_ah, pack_resistance_ohm, dt_s, cells_series,
+                  coulombic_efficiency, soc_min_frac, soc_max_frac, max_charge_c_rate,
+                  max_discharge_c_rate, ocv_cell_v, resistance_soc_factor):
+    """OCV [V], resistance [Ohm] and the current/power limits of this step.
 
     The charge limit also keeps the pack from passing ``soc_max_frac`` within the step; the
     discharge limit is zero at or below ``soc_min_frac`` (the BMS cuts traction)."""
     soc_pct = 100.0 * soc_frac
-    capacity_ah = cell_capacity_ah * cells_parallel * capacity_factor
     ocv_v = cells_series * lookup1(ocv_cell_v, soc_pct)
-    arrhenius = math.exp(activation_energy_j_per_mol / _GAS_CONSTANT_J_PER_MOL_K
-                         * (1.0 / (battery_temp_degc + 273.15) - 1.0 / _T_REF_K))
-    resistance_ohm = (cell_resistance_mohm * 1e-3 * cells_series / cells_parallel
-                      * connection_factor * lookup1(resistance_soc_factor, soc_pct)
-                      * arrhenius * resistance_factor)
+    resistance_ohm = pack_resistance_ohm * lookup1(resistance_soc_factor, soc_pct)
     headroom_a = max(soc_max_frac - soc_frac, 0.0) * (
         3600.0 * capacity_ah / (coulombic_efficiency * dt_s))
     charge_a = min(max_charge_c_rate * capacity_ah, headroom_a)
@@ -102,7 +112,7 @@ def battery_state(soc_frac, capacity_factor, resistance_factor, battery_temp_deg
         if 2.0 * resistance_ohm * discharge_a > ocv_v:  # beyond the maximum-power current
             discharge_a = 0.5 * ocv_v / resistance_ohm
         discharge_w = discharge_a * (ocv_v - resistance_ohm * discharge_a)
-    return ocv_v, resistance_ohm, capacity_ah, charge_a, charge_w, discharge_w
+    return ocv_v, resistance_ohm, charge_a, charge_w, discharge_w
 
 
 def battery_update(battery_power_w, soc_frac, ocv_v, resistance_ohm, capacity_ah, dt_s,
@@ -131,9 +141,9 @@ rint_battery = register(Effect(
     name="rint_battery",
     slot="battery",
     calls={
-        "state": Call(battery_state, ("ocv_v", "resistance_ohm", "capacity_ah",
-                                      "charge_current_max_a", "charge_power_max_w",
-                                      "discharge_power_max_w")),
+        "pack": Call(battery_pack, ("capacity_ah", "pack_resistance_ohm")),
+        "state": Call(battery_state, ("ocv_v", "resistance_ohm", "charge_current_max_a",
+                                      "charge_power_max_w", "discharge_power_max_w")),
         "update": Call(battery_update, ("battery_current_a", "battery_voltage_v", "soc_frac_next",
                                         "battery_loss_w", "coulombic_loss_w",
                                         "battery_shortfall_w")),

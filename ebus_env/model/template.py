@@ -132,6 +132,7 @@ STAGES = (
     SinkSum("dc_load_w"),
     Site("aging"),
     Site("battery_thermal"),
+    Site("battery", "pack"),
     Site("battery", "state"),
     Site("charge_limit", when="charger_connected >= 0.5"),  # a protocol of the charger
     Site("driver"),
