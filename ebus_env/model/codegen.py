@@ -344,7 +344,8 @@ LANES_MAX = 64
 LANES_MIN = 12
 """``run_lanes`` advances its buses in groups of at most ``LANES_MAX`` lanes, of equal width and a
 multiple of 4 (AVX2: four float64 per instruction); below ``LANES_MIN`` buses it is not faster
-than ``run`` by much. Measured on a 12 m bus, one thread, against ``run`` (two runs): 12 buses
+than ``run`` by much. Measured on a 12 m bus, one thread, against ``run`` (two runs, before
+the battery's ``pack`` call made the lanes about 15 % faster; not measured again): 12 buses
 -16 and -27 %, 16 to 275 buses -28 to -33 %, 8 and 11 buses (8 and 12 lanes) -7 and -6 %, and
 11 lanes +21 % (presumably as the remainder of 3 runs scalar). The width is not known to the
 compiler, on purpose: written as the literal 32 the same loop took 53.7 against 39.5 ns per
