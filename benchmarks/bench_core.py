@@ -121,7 +121,8 @@ def batch(hours: float, sizes, repeat: int) -> None:
 def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
     """The batch as calibration runs it: SoC kept at a 1 Hz log's rows, no energy sums."""
     n = params.shape[0]
-    model.compile(sample=True, lanes=n >= 2 * codegen.LANES_MIN)  # timed runs exclude the JIT
+    # timed runs exclude the JIT
+    model.compile(sample=True, lanes=n >= 2 * codegen.LANES_MIN, params=params)
     inputs = model.input_array(day)
     states = np.repeat(model.initial_state(model.params, {"speed_ref_mps": 0.0}, 0.95)[None],
                        n, axis=0)

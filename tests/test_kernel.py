@@ -3,6 +3,7 @@ composition checks; a user's out-of-tree effect; the disk cache."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -14,7 +15,8 @@ import pytest
 
 from ebus_env.cycles import service_day
 from ebus_env.errors import CompositionError, ConfigError
-from ebus_env.model.model import build_model, run_chunks
+from ebus_env.model import codegen
+from ebus_env.model.model import build_model, differing_columns, run_chunks
 from tests.conftest import DT, constant_profile
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,6 +58,41 @@ def test_batch_equals_each_member_alone(model12, mixed_profile):
     assert np.ptp(batch.final("soc_frac")) > 1e-3
 
 
+def test_lane_loop_shares_what_does_not_vary(model12, mixed_profile):
+    """The lane loop reads per bus only the parameters that differ between the buses, and runs
+    each statement where its inputs change: with only the curb mass differing, the auxiliaries
+    once per call, the vehicle body once per group, the passenger load once per step and the
+    road load per lane and step. Still the scalar loop's bits."""
+    i = model12.param_index("vehicle_body.curb_mass_kg")
+    source = codegen.lane_source(model12.layout, {i})
+    loop = source[source.index("def run_lanes("):source.index("def run_sample_lanes(")]
+    assert re.search(r"\n {4}auxiliaries_w = fx__auxiliaries__main\(", loop)
+    assert re.search(r"\n {12}W\[\d+, g\], .* = fx__vehicle_body__main\(P\[0, g\]", loop)
+    assert re.search(r"\n {12}\w+ = fx__passenger_load__main\(passenger_count, ", loop)
+    assert re.search(r"\n {16}W\[\d+, g\] = fx__aero_drag__main\(W\[", loop)
+    assert loop.count("P[") == 2  # read in, read by the vehicle body
+
+    short = mixed_profile.slice(0, 3000)
+    params = np.repeat(model12.params[None], 24, axis=0)
+    params[:, i] += np.linspace(0.0, 4000.0, 24)
+    state0 = np.repeat(model12.initial_state(model12.params, {}, 0.85)[None], 24, axis=0)
+    inputs = model12.input_array(short)
+    results = []
+    for kw in ({"lanes": True, "varying": {i}}, {"lanes": False}):
+        states = state0.copy()
+        results.append((model12.run(params, states, inputs, threads=2, **kw), states))
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])
+    assert np.ptp(results[0][1][:, model12.state_names.index("soc_frac")]) > 1e-4
+    # a column left out that differs is an error, not a silent mix-up
+    with pytest.raises(ValueError, match=rf"give at least \[{i}\]"):
+        model12.run(params, state0.copy(), inputs, threads=2, lanes=True, varying=set())
+    # columns differ bit for bit: -0.0 against 0.0 and NaN against a number count
+    table = np.zeros((3, 4))
+    table[1, 1], table[2, 3], table[:, 2] = -0.0, np.nan, np.nan
+    assert differing_columns(table) == {1, 3}
+
+
 def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
     """Buses on the same input rows run in SIMD lanes (``run_lanes``): the same results to the
     last bit, through ``simulate_batch`` on two threads and called directly, with spare lanes
@@ -75,9 +112,10 @@ def test_lane_kernel_equals_the_scalar_loop(model12, mixed_profile):
     results = {}
     for variant in ("run", "run_lanes"):
         states, acc = state0.copy(), model12.new_accumulators(n)
-        model12.kernel(variant)(params, states, inputs, np.zeros(n, np.int64), np.full(n, 100),
-                                np.full(n, 2500), model12.dt_s, 0, np.zeros(0, np.int64),
-                                np.zeros((n, 0, 0), np.float32), np.zeros(1, np.bool_), acc, 0, n)
+        kernel = model12.kernel(variant, model12.varying_columns(params))
+        kernel(params, states, inputs, np.zeros(n, np.int64), np.full(n, 100), np.full(n, 2500),
+               model12.dt_s, 0, np.zeros(0, np.int64), np.zeros((n, 0, 0), np.float32),
+               np.zeros(1, np.bool_), acc, 0, n)
         results[variant] = states, acc
     np.testing.assert_array_equal(results["run_lanes"][0], results["run"][0])
     np.testing.assert_array_equal(results["run_lanes"][1], results["run"][1])

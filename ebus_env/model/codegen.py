@@ -6,9 +6,10 @@ their parameters unpacked into locals, so numba compiles (and inlines) everythin
 machine-code loop: a user's effect runs at the same speed as a built-in one. Five variants are
 generated from the same step: ``run`` (no recording: nothing beyond the states and energy sums
 stays live, which keeps the loop in registers), ``run_record`` (keeps a trace), ``run_sample``
-(calibration: only the SoC at the rows a log has samples, no energy sums), and ``run_lanes``
-and ``run_sample_lanes``: ``run`` and ``run_sample`` for buses that share their input rows,
-many at a time in SIMD lanes.
+(calibration: only the SoC at the rows a log has samples, no energy sums), and, in a module of
+their own for each set of parameters that differ between the buses (:func:`lane_source`),
+``run_lanes`` and ``run_sample_lanes``: ``run`` and ``run_sample`` for buses that share their
+input rows, many at a time in SIMD lanes.
 
 The source is written to ``$EBUS_CACHE_DIR`` (default ``~/.cache/ebus_env/kernels``) under a
 name that hashes the source, the effects' source files and the library versions, and compiled
@@ -79,6 +80,10 @@ class Layout:
     calls: list[tuple[str, str]] = field(default_factory=list)  # (effect, call site)
     road_terms: list[str] = field(default_factory=list)
     load_terms: list[str] = field(default_factory=list)
+    header: list[str] = field(default_factory=list)  # imports, bindings, tables
+    body: list[str] = field(default_factory=list)  # one step, as Python statements
+    sums: list[tuple[str, str]] = field(default_factory=list)  # (energy, power expression)
+    extremes: list[tuple[str, str, str]] = field(default_factory=list)  # (name, expr, max|min)
 
 
 def _param_local(effect: str, name: str) -> str:
@@ -256,13 +261,12 @@ def generate(comp: Composition) -> Layout:
                 ("max_behind", "distance_behind_m", "max")]
     layout.accumulators = [(n, "sum") for n, _ in sums] + [(n, m) for n, _, m in extremes]
 
-    header = _header(comp, layout)
+    layout.body, layout.sums, layout.extremes = w.lines, sums, extremes
+    layout.header = _header(comp, layout)
     layout.source = "\n".join(
-        header + _loop("run", layout, w.lines, sums, extremes, "plain")
+        layout.header + _loop("run", layout, w.lines, sums, extremes, "plain")
         + _loop("run_record", layout, w.lines, sums, extremes, "record")
-        + _loop("run_sample", layout, w.lines, sums, extremes, "sample")
-        + _lane_loop("run_lanes", layout, w.lines, sums, extremes, "plain")
-        + _lane_loop("run_sample_lanes", layout, w.lines, sums, extremes, "sample")) + "\n"
+        + _loop("run_sample", layout, w.lines, sums, extremes, "sample")) + "\n"
     return layout
 
 
@@ -367,48 +371,68 @@ class _ToLanes(ast.NodeTransformer):
         return ast.copy_location(ast.Subscript(ast.Name(array, ast.Load()), index, node.ctx), node)
 
 
-def _lane_loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str) -> list[str]:
+def lane_source(layout: Layout, varying) -> str:
+    """Source of the lane loops ``run_lanes`` and ``run_sample_lanes`` for buses whose
+    parameters differ only in the columns ``varying`` (the others are read once, from the
+    first bus)."""
+    varying = sorted(set(varying))
+    return "\n".join(
+        layout.header + [f"# lane loops: parameters that differ between lanes: {varying}"]
+        + _lane_loop("run_lanes", layout, "plain", varying)
+        + _lane_loop("run_sample_lanes", layout, "sample", varying)) + "\n"
+
+
+def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list[str]:
     """``run_lanes`` (``mode`` plain) or ``run_sample_lanes`` (sample): the loop for buses that
     share their input rows (``input_set``, ``step0`` and ``n_steps`` of ``bus_lo`` hold for
     all), in groups (``LANES_MAX``), with one loop over the lanes per statement of the step.
     Same arguments and results as ``run`` or ``run_sample``, to the last bit.
 
-    Every variable of the step is a row of the scratch array ``W[variable, lane]``, every
-    parameter a row of ``P``: loops that simple compile to SIMD code (4 lanes per AVX2
-    instruction), which the whole step as one loop does not (too many branches). Statements
-    that read only parameters run once per group. Spare lanes of the last group repeat its last
-    bus and are not written back.
+    Every variable of the step that differs between lanes is a row of the scratch array
+    ``W[variable, lane]``, every parameter in ``varying`` a row of ``P``: loops that simple
+    compile to SIMD code (4 lanes per AVX2 instruction), which the whole step as one loop does
+    not (too many branches). Each statement runs where its inputs change: once per call (only
+    shared parameters), once per group (parameters), once per step (shared parameters and the
+    input rows) or once per lane and step; the shared values stay plain locals, so the compiler
+    hoists what depends on shared parameters alone out of both loops, as in ``run``. Spare lanes
+    of the last group repeat its last bus and are not written back.
     """
-    tree = ast.parse("\n".join(body))
+    sums, extremes = layout.sums, layout.extremes
+    tree = ast.parse("\n".join(layout.body))
     stored = [n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)]
-    rows = {n: j for j, n in enumerate(dict.fromkeys([*layout.states, *stored]))}
-    params = {_param_local(e, p): j for j, (e, p) in enumerate(layout.params)}
-    to_lanes = _ToLanes(rows, params)
+    variables = list(dict.fromkeys([*layout.states, *stored]))
+    locals_ = [_param_local(e, p) for e, p in layout.params]
+    shared_params = [p for j, p in enumerate(locals_) if j not in set(varying)]
+    steady = set(locals_)  # names that keep their value over the steps
+    scalar = set(shared_params) | set(layout.inputs) | {"time_s"}  # the same in every lane
+    known = set(variables) | steady | scalar
+    placed: dict[str, list[str]] = {"call": [], "group": [], "step": [], "lane": []}
+    for st in tree.body:
+        reads = {n.id for n in ast.walk(st) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+        reads &= known
+        outs = [n.id for n in ast.walk(st) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)]
+        single = isinstance(st, ast.Assign) and all(stored.count(o) == 1 for o in outs)
+        is_steady, is_scalar = single and reads <= steady, single and reads <= scalar
+        steady |= set(outs) if is_steady else set()
+        scalar |= set(outs) if is_scalar else set()
+        where = ("call" if is_steady and is_scalar else "group" if is_steady
+                 else "step" if is_scalar else "lane")
+        placed[where].append(ast.unparse(st))
+    rows = {n: j for j, n in enumerate(v for v in variables if v not in scalar)}
+    to_lanes = _ToLanes(rows, {locals_[j]: i for i, j in enumerate(varying)})
 
     def lane(code: str, indent: str) -> list[str]:
         return [indent + line for line in ast.unparse(to_lanes.visit(ast.parse(code))).splitlines()]
 
-    # once per group: assignments that read no variable but earlier such results
-    fixed: set[str] = set()
-    once, each = [], []
-    for st in tree.body:
-        reads = {n.id for n in ast.walk(st) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
-        outs = [n.id for n in ast.walk(st) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)]
-        if (isinstance(st, ast.Assign) and reads & (set(rows) | set(layout.inputs) | {"time_s"}) <= fixed
-                and all(stored.count(o) == 1 for o in outs)):
-            fixed |= set(outs)
-            once.append(ast.unparse(st))
-        else:
-            each.append(ast.unparse(st))
     n_sum, n_acc = len(sums), len(sums) + len(extremes)
     summed = range(n_sum if mode == "plain" else 0)  # calibration needs no energies
-    each += [f"S[{j}, g] += {sums[j][1]}" for j in summed]
+    each = placed["lane"] + [f"S[{j}, g] += {sums[j][1]}" for j in summed]
     each += [f"S[{j}, g] = {how}(S[{j}, g], {expr})"
              for j, (_, expr, how) in enumerate(extremes, start=n_sum)]
     advance = [f"{s} = {s}_next" for s in layout.states]
 
     g = "for g in range(lanes):"
-    i2, i3, i4 = (" " * n for n in (8, 12, 16))
+    i2, i3, i4, i5 = (" " * n for n in (8, 12, 16, 20))
     out = [
         "",
         "",
@@ -418,32 +442,38 @@ def _lane_loop(name: str, layout: Layout, body: list[str], sums, extremes, mode:
         "        return",
         f"    groups = -(-(bus_hi - bus_lo) // {LANES_MAX})",
         "    lanes = -(-(bus_hi - bus_lo) // (4 * groups)) * 4  # equal groups, 4 lanes a vector",
-        f"    W = np.zeros(({len(rows)}, lanes))",
-        f"    P = np.empty(({len(params)}, lanes))",
+        f"    W = np.zeros(({max(len(rows), 1)}, lanes))",
+        f"    P = np.empty(({max(len(varying), 1)}, lanes))",
         f"    S = np.empty(({n_acc}, lanes))",
         "    inp = inputs[input_set[bus_lo]]",
+    ]
+    out += [f"    {p} = params[bus_lo, {locals_.index(p)}]" for p in shared_params]
+    for st in placed["call"]:
+        out += lane(st, "    ")
+    out += [
         "    for c in range(bus_lo, bus_hi, lanes):",
         f"{i2}{g}",
         f"{i3}b = min(c + g, bus_hi - 1)",
-        f"{i3}for j in range({len(params)}):",
-        f"{i4}P[j, g] = params[b, j]",
     ]
+    out += [f"{i3}P[{i}, g] = params[b, {j}]" for i, j in enumerate(varying)]
     out += [f"{i3}W[{rows[s]}, g] = states[b, {j}]" for j, s in enumerate(layout.states)]
     out += [f"{i3}S[{j}, g] = 0.0" for j in summed]
     out += [f"{i3}S[{j}, g] = acc[b, {j}]" for j in range(n_sum, n_acc)]
-    for st in once:
+    for st in placed["group"]:
         out += [f"{i2}{g}"] + lane(st, i3)
     out += [f"{i2}r = 0"] if mode == "sample" else []
     out += [f"{i2}for k in range(n_steps[bus_lo]):",
             f"{i3}row = step0[bus_lo] + k",
             f"{i3}time_s = row * dt_s"]
     out += [f"{i3}{ch} = inp[{j}, row]" for j, ch in enumerate(layout.inputs)]
+    for st in placed["step"]:
+        out += lane(st, i3)
     for st in each:
         out += [f"{i3}{g}"] + lane(st, i4)
     if mode == "sample":
         out += [f"{i3}if sample_mask[row]:",
                 f"{i4}for g in range(min(lanes, bus_hi - c)):",
-                f"{i4}    record_out[c + g, r, 0] = W[{rows['soc_frac']}, g]",
+                f"{i5}record_out[c + g, r, 0] = W[{rows['soc_frac']}, g]",
                 f"{i4}r += 1"]
     for st in advance:
         out += [f"{i3}{g}"] + lane(st, i4)
@@ -514,24 +544,33 @@ def _register_effects(comp: Composition) -> None:
 
 def compile_kernel(comp: Composition, layout: Layout):
     """Import the generated module with its loops jitted (``run_compiled``,
-    ``run_record_compiled``, ``run_sample_compiled``, ``run_lanes_compiled``,
-    ``run_sample_lanes_compiled``); each compiles, or loads from the disk cache, on first
-    call."""
-    key = kernel_key(comp, layout.source)
+    ``run_record_compiled``, ``run_sample_compiled``); each compiles, or loads from the disk
+    cache, on first call."""
+    return _compile(comp, layout.source, ("run", "run_record", "run_sample"))
+
+
+def compile_lanes(comp: Composition, layout: Layout, varying):
+    """The lane loops for parameters that differ in the columns ``varying`` (:func:`lane_source`),
+    jitted as ``run_lanes_compiled`` and ``run_sample_lanes_compiled``."""
+    return _compile(comp, lane_source(layout, varying), ("run_lanes", "run_sample_lanes"))
+
+
+def _compile(comp: Composition, source: str, names):
+    key = kernel_key(comp, source)
     with _LOCK:
         _register_effects(comp)
         module_name = f"ebus_kernel_{key}"
         if module_name in sys.modules:
             return sys.modules[module_name]
         path = cache_dir() / f"{module_name}.py"
-        if not path.exists() or path.read_text() != layout.source:
+        if not path.exists() or path.read_text() != source:
             tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(layout.source)
+            tmp.write_text(source)
             os.replace(tmp, path)
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        for name in ("run", "run_record", "run_sample", "run_lanes", "run_sample_lanes"):
+        for name in names:
             jitted = numba.njit(cache=True, nogil=True, error_model="numpy")(getattr(module, name))
             setattr(module, name + "_compiled", jitted)
         sys.modules[module_name] = module

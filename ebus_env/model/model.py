@@ -81,6 +81,7 @@ class Model:
                                dtype=float)
         self._check_in_bounds(self.params, "the model's configured value")
         self._kernel = None
+        self._lane_kernels = {}  # varying parameter columns -> module of the lane loops
         self._python_kernel = None
 
     # -- description ------------------------------------------------------------------------
@@ -236,28 +237,49 @@ class Model:
         return np.tile(np.array(row, dtype=float), (n_bus, 1))
 
     # -- running ----------------------------------------------------------------------------
-    def kernel(self, variant: str = "run"):
+    def kernel(self, variant: str = "run", varying=None):
         """A compiled loop: ``run``, ``run_record``, ``run_sample``, ``run_lanes`` or
-        ``run_sample_lanes`` (compiled, or loaded from the disk cache, on first call)."""
+        ``run_sample_lanes`` (compiled, or loaded from the disk cache, on first call). The lane
+        loops are made for the parameter columns ``varying`` that differ between the buses (the
+        others are taken from the first bus; default: all columns differ)."""
+        if variant.endswith("_lanes"):
+            columns = frozenset(range(len(self.params)) if varying is None else varying)
+            if columns not in self._lane_kernels:
+                self._lane_kernels[columns] = codegen.compile_lanes(self.composition, self.layout,
+                                                                    columns)
+            return getattr(self._lane_kernels[columns], variant + "_compiled")
         if self._kernel is None:
             self._kernel = codegen.compile_kernel(self.composition, self.layout)
         return getattr(self._kernel, variant + "_compiled")
 
-    def compile(self, record: bool = False, sample: bool = False, lanes: bool = False) -> float:
+    def varying_columns(self, params: np.ndarray) -> frozenset[int]:
+        """The parameter columns a lane loop for ``params`` reads per bus: those where any row
+        differs from the first, or the smallest set of a lane loop already compiled that holds
+        them (saves a compile)."""
+        columns = differing_columns(params)
+        ready = [c for c in self._lane_kernels if columns <= c]
+        return min(ready, key=len) if ready else columns
+
+    def compile(self, record: bool = False, sample: bool = False, lanes: bool = False,
+                params: np.ndarray | None = None) -> float:
         """Compile now (or load from the disk cache) the loop a run with these options uses;
-        returns the seconds it took. ``lanes``: the SIMD lane loop (about 12 s per model on
-        an empty cache)."""
+        returns the seconds it took. ``lanes``: the SIMD lane loop (about 12 s per model and
+        set of differing parameters on an empty cache) for the parameter sets ``params``
+        (default: all the model's own)."""
         t0 = time.perf_counter()
         n_bus = codegen.LANES_MIN if lanes else 1  # enough buses for run() to choose lanes
+        matrix = self.params[None, :] if params is None else params
+        varying = self.varying_columns(matrix) if lanes else None
         args = (np.repeat(self.params[None, :], n_bus, axis=0),
                 np.repeat(self.initial_state(self.params, {})[None, :], n_bus, axis=0),
                 np.zeros((1, len(self.input_names), 2)))
         trace = np.zeros((n_bus, 1, len(self.trace_names)), np.float32) if record else None
         self.run(*args, n_steps=1, record_every=1 if record else 0, record_out=trace, threads=1,
-                 lanes=lanes)
+                 lanes=lanes, varying=varying)
         if sample:
             self.run(*args, n_steps=1, sample_mask=np.ones(2, bool),
-                     record_out=np.zeros((n_bus, 1, 1), np.float32), threads=1, lanes=lanes)
+                     record_out=np.zeros((n_bus, 1, 1), np.float32), threads=1, lanes=lanes,
+                     varying=varying)
         return time.perf_counter() - t0
 
     def run(self, params: np.ndarray, states: np.ndarray, inputs: np.ndarray,
@@ -265,7 +287,8 @@ class Model:
             n_steps: int | np.ndarray | None = None, record_every: int = 0,
             record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
             acc: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
-            threads: int | None = None, python: bool = False, lanes: bool = False) -> np.ndarray:
+            threads: int | None = None, python: bool = False, lanes: bool = False,
+            varying=None) -> np.ndarray:
         """Advance N buses by ``n_steps`` from ``states`` (updated in place).
 
         Parameters
@@ -287,9 +310,11 @@ class Model:
         lanes : when all buses read the same input rows (a batch of parameter sets) and each
             thread has at least ``codegen.LANES_MIN`` of them, advance them in groups with the
             SIMD lane kernel (``run_lanes``, ``run_sample_lanes``: the same results to the last
-            bit, a third to two fifths less time with 64 to 550 buses). Off by default: it
-            compiles on first use (about 12 s per model, then cached on disk), which pays for
-            repeated or large runs only
+            bit, about half the time with 64 to 550 buses when a few parameters differ). Off by
+            default: it compiles on first use (about 12 s per model and set of differing
+            parameters, then cached on disk), which pays for repeated or large runs only
+        varying : the parameter columns the lane loop reads per bus (default:
+            :meth:`varying_columns` of ``params``); the others it reads from the first bus
 
         Returns
         -------
@@ -344,7 +369,14 @@ class Model:
         threads = min(threads, n_bus) if steps.sum() >= 50_000 else 1
         edges = np.linspace(0, n_bus, threads + 1).astype(int).tolist()
         if lanes and variant != "run_record" and self._shared_rows(input_set, step0, steps, edges):
-            kernel = self.kernel(variant + "_lanes")  # groups of buses in SIMD lanes
+            # groups of buses in SIMD lanes
+            if varying is None:
+                varying = self.varying_columns(params)
+            elif not differing_columns(params) <= set(varying):
+                raise ValueError(f"varying = {sorted(varying)} misses parameter columns that "
+                                 f"differ between the buses: give at least "
+                                 f"{sorted(differing_columns(params))}, or leave it out.")
+            kernel = self.kernel(variant + "_lanes", varying)
         run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
         return acc
 
@@ -424,13 +456,20 @@ class Model:
         n = inputs.shape[1]
         out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
         # the wall time is the run's, not the JIT's
-        self.compile(record=len(sel) > 0, lanes=lanes and len(matrix) >= codegen.LANES_MIN)
+        self.compile(record=len(sel) > 0, lanes=lanes and len(matrix) >= codegen.LANES_MIN,
+                     params=matrix)
         t0 = time.perf_counter()
         acc = self.run(matrix, states, inputs, record_every=record_every if len(sel) else 0,
                        record_sel=sel, record_out=out, threads=threads, lanes=lanes)
         wall = time.perf_counter() - t0
         return BatchResult(self, profile, matrix, states0, states, acc, list(record), out,
                            record_every, wall)
+
+
+def differing_columns(params: np.ndarray) -> frozenset[int]:
+    """Columns where any row differs from the first, bit for bit (-0.0 and NaN differ too)."""
+    bits = np.ascontiguousarray(params, dtype=float).view(np.int64)
+    return frozenset(np.flatnonzero((bits != bits[:1]).any(axis=0)).tolist())
 
 
 def _first_measured_soc(profile: Profile) -> float | None:
