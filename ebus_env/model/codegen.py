@@ -264,9 +264,8 @@ def generate(comp: Composition) -> Layout:
     layout.body, layout.sums, layout.extremes = w.lines, sums, extremes
     layout.header = _header(comp, layout)
     layout.source = "\n".join(
-        layout.header + _loop("run", layout, w.lines, sums, extremes, "plain")
-        + _loop("run_record", layout, w.lines, sums, extremes, "record")
-        + _loop("run_sample", layout, w.lines, sums, extremes, "sample")) + "\n"
+        layout.header + _loop("run", layout, "plain") + _loop("run_record", layout, "record")
+        + _loop("run_sample", layout, "sample")) + "\n"
     return layout
 
 
@@ -285,9 +284,10 @@ def _header(comp: Composition, layout: Layout) -> list[str]:
     return out
 
 
-def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str) -> list[str]:
+def _loop(name: str, layout: Layout, mode: str) -> list[str]:
     """The loop over buses and steps (``mode``: plain, record or sample). The recording variant
     keeps every signal live, which costs registers, so the others have no such code at all."""
+    sums, extremes = layout.sums, layout.extremes
     out = [
         "",
         "",
@@ -314,7 +314,7 @@ def _loop(name: str, layout: Layout, body: list[str], sums, extremes, mode: str)
     out.append(f"{ind3}time_s = row * dt_s")
     for j, channel in enumerate(layout.inputs):
         out.append(f"{ind3}{channel} = inp[{j}, row]")
-    out += [ind3 + line for line in body]
+    out += [ind3 + line for line in layout.body]
     for j, (_, expr) in enumerate(energy_sums):
         out.append(f"{ind3}s{j} += {expr}")
     for j, (_, expr, how) in enumerate(extremes, start=len(sums)):
@@ -394,7 +394,7 @@ def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list
     not (too many branches). Each statement runs where its inputs change: once per call (only
     shared parameters), once per group (parameters), once per step (shared parameters and the
     input rows) or once per lane and step; the shared values stay plain locals, so the compiler
-    hoists what depends on shared parameters alone out of both loops, as in ``run``. Spare lanes
+    can hoist what depends on shared parameters alone out of both loops, as in ``run``. Spare lanes
     of the last group repeat its last bus and are not written back.
     """
     sums, extremes = layout.sums, layout.extremes
@@ -442,8 +442,8 @@ def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list
         "        return",
         f"    groups = -(-(bus_hi - bus_lo) // {LANES_MAX})",
         "    lanes = -(-(bus_hi - bus_lo) // (4 * groups)) * 4  # equal groups, 4 lanes a vector",
-        f"    W = np.zeros(({max(len(rows), 1)}, lanes))",
-        f"    P = np.empty(({max(len(varying), 1)}, lanes))",
+        f"    W = np.zeros(({len(rows)}, lanes))",
+        f"    P = np.empty(({len(varying)}, lanes))",
         f"    S = np.empty(({n_acc}, lanes))",
         "    inp = inputs[input_set[bus_lo]]",
     ]
