@@ -39,7 +39,7 @@ CYCLES: dict[str, CycleInfo] = {
     "sort1": CycleInfo("carculator/sort1.csv", "UITP SORT 1, heavy urban (520 m)", _CARC),
     "sort2": CycleInfo("carculator/sort2.csv", "UITP SORT 2, easy urban (920 m)", _CARC),
     "sort3": CycleInfo("carculator/sort3.csv", "UITP SORT 3, easy suburban (1450 m)", _CARC),
-    "sort123": CycleInfo("", "SORT 1 + 2 + 3 composite ('hybrid SORT', physics.md 4.3)", _CARC),
+    "sort123": CycleInfo("", "SORT 1 + 2 + 3 composite ('hybrid SORT', docs/physics.md §8.2)", _CARC),
     "vecto_urban_13m": CycleInfo("carculator/vecto_urban_13m.csv",
                                  "VECTO Urban mission, 13 m bus, with grade", _CARC),
     "vecto_urban_18m": CycleInfo("carculator/vecto_urban_18m.csv",

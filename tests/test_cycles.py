@@ -16,7 +16,7 @@ from tests.conftest import DT
 def test_sort_cycles_match_the_published_lengths(name, metres, mean_kmh):
     cycle = load_cycle(name)
     assert cycle.distance_km * 1000 == pytest.approx(metres, rel=0.03)
-    # SORT 3's published mean speed depends on an uncertain stop time (physics.md 4.2)
+    # SORT 3's published mean speed depends on an uncertain stop time (docs/physics.md §8.1)
     assert cycle.mean_speed_kmh == pytest.approx(mean_kmh, rel=0.03 if name != "sort3" else 0.15)
 
 

@@ -67,7 +67,7 @@ def test_regen_cutoff(fn):
 def test_cccv_taper_decays_with_negative_exponent(fn):
     cc, taper = fn(0.80, 300.0, 87.5, 0.23, 3.0)
     assert cc == 900.0 and taper == 1.0
-    # physics.md 5.4: exp(-0.23 (SoC - 87.5)) = 0.563 at 90 %, 0.178 at 95 %, 0.056 at 100 %
+    # docs/physics.md §5.4: exp(-0.23 (SoC - 87.5)) = 0.563 at 90 %, 0.178 at 95 %, 0.056 at 100 %
     assert fn(0.90, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.563, abs=1e-3)
     assert fn(0.95, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.178, abs=1e-3)
     assert fn(1.00, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.056, abs=1e-3)

@@ -6,7 +6,7 @@ Each rule acts on ``EBus-v0`` observations, one row per bus, and returns actions
 * baseline: no ECO feature: no speed or acceleration cap (80 km/h, 1.5 m/s^2), a fixed
   setpoint (21 degC), charging at full power, continuously;
 * ECO-driving (App. B.1): caps the top speed and the acceleration (jerk-limited in the env);
-* ECO-comfort (App. B.2, ``physics.md`` 6.4): the setpoint follows ambient temperature and
+* ECO-comfort (App. B.2, docs/physics.md §10.2): the setpoint follows ambient temperature and
   occupancy; on the charger the cabin is preconditioned to it with grid power (the env's
   cabin runs from the charger while connected)::
 
@@ -20,7 +20,7 @@ Each rule acts on ``EBus-v0`` observations, one row per bus, and returns actions
   the full power (a pulsed layover delivers less energy, and a bus whose layovers
   ECO-driving shortened must not run down its pack for a lower peak).
 
-The coefficients are parametrisations [P] (``physics.md``), exposed as fields.
+The coefficients are parametrisations (docs/physics.md §10), exposed as fields.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def normalised(values: np.ndarray) -> np.ndarray:
 
 
 def eco_setpoint_degc(ambient_degc: np.ndarray, occupancy: np.ndarray) -> np.ndarray:
-    """ECO-comfort setpoint (``physics.md`` 6.4) from ambient [degC] and occupancy [0-1]."""
+    """ECO-comfort setpoint (docs/physics.md §10.2) from ambient [degC] and occupancy [0-1]."""
     heating = np.maximum(17.0, 20.0 - 1.0 * np.clip(occupancy, 0.0, 1.0))
     neutral = ambient_degc + 2.0
     cooling = np.minimum(27.0, np.maximum(22.0 + 0.33 * (ambient_degc - 22.0), ambient_degc - 7.0))

@@ -9,14 +9,14 @@ candidates around the best one, with a spread taken from the population itself::
     selection: the best N of population + candidates   ((mu + lambda) truncation)
 
 iSOPT adds a way out of local optima. Only the abstract of the iSOPT paper could be read, so the
-escape is a reconstruction (reference/physics.md 1.3): when the best cost has not improved for
+escape is a reconstruction (docs/physics.md §9.3): when the best cost has not improved for
 ``stall_iterations`` iterations, or the population has collapsed (every sigma_j below
 ``sigma_min``), the worst ``reinit_frac`` of the population is re-drawn uniformly in the box.
 
 Where the published algorithm is uncertain, and what is chosen here (all configurable):
 
 * the order of the phases: exploitation first, then exploration (as the one public port);
-* the constants: c2 = 0.7, c1 = 1.6 (physics.md 1.4: with N = 11, c1 = 1.0 collapses early);
+* the constants: c2 = 0.7, c1 = 1.6 (docs/physics.md §9.4: with N = 11, c1 = 1.0 collapses early);
 * Gaussian z (the port) rather than uniform; a sigma floor of ``sigma_min`` per variable;
 * ``offspring`` candidates per phase, default N, so one run costs N + 2 N T evaluations
   (11 + 2 x 11 x 50 = 1111 with the defaults);

@@ -8,7 +8,7 @@ from ebus_env.effects.tables import Table, TableData, lookup1
 
 @effect("auxiliaries", sink="dc_load_w", label="constant auxiliary load", params=[
     Param("base_power_w", 4000.0, "W", (0.0, 30000.0), "Constant auxiliary load P_aux,0",
-          "12 m: 3-5 kW, 18 m: 5-7 kW; TransitBus 5 kW (physics.md 3.2)"),
+          "12 m: 3-5 kW, 18 m: 5-7 kW; TransitBus 5 kW (docs/physics.md §7.1)"),
 ])
 def auxiliaries(base_power_w):
     """Constant auxiliary load: P_aux = P_aux,0 [W]."""

@@ -10,7 +10,7 @@ Pack of N_s cells in series and N_p in parallel::
     V_t   = OCV - R I
     dSoC  = -eta I dt / (3600 Q),  eta = eta_c if I < 0 else 1
 
-(reference/physics.md 2.2 and 5.1-5.3). The current formula is the usual quadratic root written
+(docs/physics.md §5.1, §5.2, §5.3). The current formula is the usual quadratic root written
 so it stays exact as R -> 0. P > 0 and I > 0 discharge.
 """
 
@@ -49,23 +49,23 @@ OCV_CELL = Table(
 RESISTANCE_SOC = Table(
     "resistance_soc_factor", "1", "Factor f(SoC) on the cell resistance over SoC [%] (x)",
     presets={"generic": TableData((0.0, 10.0, 20.0, 90.0, 100.0), (1.5, 1.2, 1.0, 1.0, 1.1),
-                                  source="reference/physics.md 5.2 [M]/[P]")},
+                                  source="docs/physics.md §5.2")},
     default="generic",
 )
 
 BATTERY_PARAMS = (
     Param("cells_series", 204.0, "1", (1.0, 400.0), "Cells in series N_s",
-          "200 kWh LFP at ~650 V: ~203 (physics.md 5.1)"),
+          "200 kWh LFP at ~650 V: ~203 (docs/physics.md §5.1)"),
     Param("cells_parallel", 3.0, "1", (1.0, 100.0), "Cells (strings) in parallel N_p"),
     Param("cell_capacity_ah", 100.0, "Ah", (0.5, 1000.0), "Nominal cell capacity Q_cell"),
     Param("cell_resistance_mohm", 1.0, "mOhm", (0.05, 50.0),
           "Cell DC resistance at 25 degC, mid SoC, R_cell", "LFP 100-300 Ah prismatic 0.3-1.0 mOhm"),
     Param("connection_factor", 1.2, "1", (1.0, 1.6), "Busbar/contactor factor k_conn",
-          "physics.md 5.2: 1.1-1.3"),
+          "docs/physics.md §5.2: 1.1-1.3"),
     Param("activation_energy_j_per_mol", 25000.0, "J/mol", (0.0, 60000.0),
           "Arrhenius activation energy Ea of the resistance", "LFP ~25 kJ/mol, NMC ~30 kJ/mol"),
     Param("coulombic_efficiency", 0.998, "1", (0.95, 1.0), "Coulombic efficiency on charge eta_c",
-          "physics.md 5.3"),
+          "docs/physics.md §5.3"),
     Param("soc_min_frac", 0.0, "1", (0.0, 0.3),
           "SoC at which the BMS cuts traction (auxiliaries still drain the pack)"),
     Param("soc_max_frac", 1.0, "1", (0.7, 1.0), "SoC the pack is never charged past"),
@@ -160,7 +160,7 @@ rint_battery = register(Effect(
     Param("rcd_frac", 0.0, "1", (0.0, 0.3), "Relative capacity degradation RCD",
           "Hasan et al. 2023, tuned parameter (< 25 %)"),
     Param("resistance_growth", 1.5, "1", (0.0, 3.0),
-          "Resistance growth per unit RCD, k_R: R = R_0 (1 + k_R RCD)", "physics.md 5.2: 1-2"),
+          "Resistance growth per unit RCD, k_R: R = R_0 (1 + k_R RCD)", "docs/physics.md §5.5: 1-2"),
 ])
 def static_rcd(rcd_frac, resistance_growth):
     """Static ageing: capacity factor 1 - RCD and resistance factor 1 + k_R RCD."""

@@ -17,16 +17,16 @@ _AIR_DENSITY_KG_PER_M3 = 1.2
     Param("deadband_k", 1.0, "K", (0.0, 5.0),
           "Half-width of the comfort band around T_set in which the HVAC idles"),
     Param("ua_w_per_k", 400.0, "W/K", (10.0, 1500.0), "Envelope conductance UA",
-          "12 m: 300-500 W/K (physics.md 6.1)"),
+          "12 m: 300-500 W/K (docs/physics.md §7.2)"),
     Param("heat_capacity_j_per_k", 1.0e6, "J/K", (2.0e4, 5.0e6),
           "Effective heat capacity C of cabin air and interior", "12 m: 0.5-1.5 MJ/K"),
     Param("fresh_air_kg_per_s", 0.4, "kg/s", (0.0, 2.0), "Fresh-air mass flow m_fresh",
           "12 m: 0.3-0.6 kg/s"),
     Param("door_air_m3_per_s", 0.7, "m^3/s", (0.0, 5.0),
           "Air exchanged through open doors V_door (all doors together)",
-          "10-30 % of ~70 m^3 cabin air per 20 s stop (physics.md 6.1)"),
+          "10-30 % of ~70 m^3 cabin air per 20 s stop (docs/physics.md §7.2)"),
     Param("passenger_heat_w", 100.0, "W", (50.0, 150.0), "Sensible heat per person q_p",
-          "70-100 W (physics.md 6.1)"),
+          "70-100 W (docs/physics.md §7.2)"),
     Param("solar_area_m2", 6.0, "m^2", (0.0, 20.0),
           "Effective glazing area tau_g A_glass for solar gain", "0.4-0.6 x 10-15 m^2"),
     Param("heating_max_w", 25000.0, "W", (0.0, 80000.0), "Largest heating power (thermal)",
@@ -38,10 +38,10 @@ _AIR_DENSITY_KG_PER_M3 = 1.2
     Param("heat_pump_min_ambient_degc", -10.0, "degC", (-30.0, 10.0),
           "Below this ambient the heat pump is off and the PTC heater does all heating"),
     Param("cop_heat_0c", 2.45, "1", (1.0, 6.0), "Heat-pump heating COP at 0 degC",
-          "COP_h = 2.45 + 0.07 T_amb (physics.md 6.2)"),
+          "COP_h = 2.45 + 0.07 T_amb (docs/physics.md §7.3)"),
     Param("cop_heat_slope_per_k", 0.07, "1/K", (0.0, 0.3), "Change of heating COP per K ambient"),
     Param("cop_cool_25c", 3.0, "1", (1.0, 8.0), "Cooling COP at 25 degC",
-          "COP_c = 3.0 - 0.06 (T_amb - 25) (physics.md 6.2)"),
+          "COP_c = 3.0 - 0.06 (T_amb - 25) (docs/physics.md §7.3)"),
     Param("cop_cool_slope_per_k", 0.06, "1/K", (0.0, 0.3), "Drop of cooling COP per K ambient"),
     Param("fan_power_w", 800.0, "W", (0.0, 5000.0), "HVAC fans, always on", "0.5-1.5 kW"),
     Param("control_gain_w_per_k", 3000.0, "W/K", (100.0, 50000.0),
@@ -58,7 +58,7 @@ def cabin_hvac(cabin_temp_degc, ambient_degc, passengers, door_open, solar_w_per
                fan_power_w, control_gain_w_per_k):
     """Electric power of the HVAC [W], its heat into the cabin [W] and the next cabin temperature.
 
-    One air node (physics.md 6.1)::
+    One air node (docs/physics.md §7.2)::
 
         C dT/dt = Q_hvac + Q_pass
         Q_pass  = -(UA + m_fresh c_p + rho c_p V_door door) (T - T_amb)

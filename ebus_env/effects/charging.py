@@ -11,7 +11,7 @@ from ebus_env.effects.base import Param, effect
     Param("cv_soc_pct", 87.5, "%", (50.0, 99.9), "CC/CV cutoff SoC_cv",
           "Hasan et al. 2023, tuned parameter (87.5-90 %)"),
     Param("decay_per_pct", 0.23, "1/%", (0.01, 1.0), "CV decay factor beta",
-          "Hasan et al. 2023, tuned parameter; sign: reference/physics.md 5.4"),
+          "Hasan et al. 2023, tuned parameter; sign: docs/physics.md §5.4"),
     Param("cc_c_rate", 3.0, "1/h", (0.1, 10.0), "Constant-current charge rate in C",
           "LFP 3C (paper)"),
 ])
@@ -22,7 +22,7 @@ def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
         taper = exp(-beta (SoC - SoC_cv))             SoC >  SoC_cv   (SoC in %)
 
     The paper prints the exponent without its minus sign, which would make the current grow
-    tenfold by 100 % SoC; the decaying form is continuous at the cutoff (physics.md 5.4).
+    tenfold by 100 % SoC; the decaying form is continuous at the cutoff (docs/physics.md §5.4).
     The charger applies the taper to its CC current, itself capped by the charger rating.
     """
     excess_pct = 100.0 * soc_frac - cv_soc_pct
@@ -37,7 +37,7 @@ def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
           "Rated DC power P_rated, used when the profile gives no charger rating",
           "Hasan et al. 2023: 450 / 290 kW opportunity, 18 kW depot; tuned parameter"),
     Param("efficiency", 0.95, "1", (0.8, 1.0), "Charger efficiency grid -> DC, eta_ch",
-          "physics.md 2.3: 0.93-0.96"),
+          "docs/physics.md §6.1: 0.93-0.96"),
     Param("pulse_period_s", 10.0, "s", (0.2, 600.0), "Pulsed charging: period t_on + t_off"),
     Param("pulse_duty", 1.0, "1", (0.05, 1.0),
           "Pulsed charging: duty cycle d = t_on / period (1: continuous charging)"),
@@ -51,7 +51,7 @@ def grid_charger(charger_connected, charger_rating_w, cc_current_a, cv_taper,
 
     While connected, the charger feeds the bus loads and charges the pack with::
 
-        I    = min(I_cc, I_rated) taper             (CC/CV, physics.md 5.4)
+        I    = min(I_cc, I_rated) taper             (CC/CV, docs/physics.md §5.4)
         I_rated: the current with which the pack takes P_rated - P_loads
         I    <- I * (1 if pulse on else low_frac)   pulse on for the first d of each period
         P_dc = min(I (OCV + R I) + P_loads, P_rated),  P_grid = P_dc / eta_ch

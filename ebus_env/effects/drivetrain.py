@@ -25,11 +25,11 @@ from ebus_env.effects.tables import Table, TableData, lookup2
 
 MOTOR_PARAMS = (
     Param("wheel_radius_m", 0.48, "m", (0.2, 0.7), "Dynamic wheel radius r",
-          "275/70R22.5 tyre; TransitBus 0.5 m (physics.md 3.2)"),
+          "275/70R22.5 tyre; TransitBus 0.5 m (docs/physics.md §4.4)"),
     Param("gear_ratio", 5.67, "1", (1.0, 30.0), "Overall ratio motor : wheel, i",
           "TransitBus 5.67 (central motor)"),
     Param("gearbox_efficiency", 0.96, "1", (0.85, 1.0), "Gearbox + final drive efficiency eta_g",
-          "TransitBus 0.95; physics.md 0.95-0.97"),
+          "TransitBus 0.95; docs/physics.md §4.4: 0.95-0.97"),
     Param("peak_power_kw", 200.0, "kW", (10.0, 800.0), "Motor peak mechanical power P_max",
           "Volvo 7900 E 200 kW; Solaris Urbino 12 160-250 kW"),
     Param("peak_torque_nm", 2800.0, "N m", (50.0, 10000.0), "Motor peak torque T_max",
@@ -115,7 +115,7 @@ def loss_model_map(base_speed_frac=0.3, copper=0.04, iron=0.004, eddy=0.002, con
     r = w / base_speed_frac
     loss = base_speed_frac * (copper * t**2 + iron * r + eddy * r**2 + constant)
     return TableData(tuple(tau), tuple(s), tuple(map(tuple, loss)),
-                     source="loss model, reference/physics.md 2.2 and this module [P]")
+                     source="loss model, docs/physics.md §4.2")
 
 
 def efficiency_to_loss(data: TableData) -> TableData:

@@ -10,7 +10,7 @@ from ebus_env.effects.base import Param, effect
           "Speed below which regenerative braking is off, v_cut", "Hasan et al. 2023"),
     Param("max_share", 1.0, "1", (0.1, 1.0),
           "Largest share of the braking force the motor takes above v_cut (blending)",
-          "Simple bus models recover 0.4-0.5 of braking energy (physics.md 3.2)"),
+          "Simple bus models recover 0.4-0.5 of braking energy (docs/physics.md §4.3)"),
 ])
 def regen_cutoff(speed_mps, cutoff_speed_mps, max_share):
     """Motor share of braking: ``max_share`` above the cutoff speed, 0 below it.

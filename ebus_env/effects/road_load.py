@@ -18,7 +18,7 @@ from ebus_env.units import GRAVITY_MPS2
 
 @effect("aero_drag", sink="road_force_n", label="aerodynamic drag", drivers=("speed_mps",), params=[
     Param("drag_coef", 0.70, "1", (0.2, 1.0), "Drag coefficient c_d",
-          "ADVISOR 0.79, sidrobus 0.6, TransitBus 0.65 (physics.md 3.2)"),
+          "ADVISOR 0.79, sidrobus 0.6, TransitBus 0.65 (docs/physics.md §2.5)"),
     Param("frontal_area_m2", 7.5, "m^2", (1.0, 10.0), "Frontal area A",
           "ADVISOR RTS06 7.90, Orion VI 7.24 m^2"),
     Param("air_density_kg_per_m3", 1.2, "kg/m^3", (1.0, 1.4), "Air density rho", "ADVISOR 1.23"),

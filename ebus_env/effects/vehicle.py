@@ -11,9 +11,9 @@ from ebus_env.units import PASSENGER_MASS_KG
 
 @effect("vehicle_body", slot="vehicle", params=[
     Param("curb_mass_kg", 13000.0, "kg", (500.0, 40000.0), "Curb mass m_0, driver included",
-          "12 m: ADVISOR RTS06/Orion VI 12.2-12.6 t, eCitaro 13.5 t (reference/physics.md 3.2)"),
+          "12 m: ADVISOR RTS06/Orion VI 12.2-12.6 t, eCitaro 13.5 t (docs/physics.md §2.5)"),
     Param("rotational_mass_factor", 1.05, "1", (1.0, 1.2),
-          "Rotating-mass factor delta: effective inertia m_eff = delta * m", "physics.md 3.2 [M]"),
+          "Rotating-mass factor delta: effective inertia m_eff = delta * m", "docs/physics.md §2.1"),
     Param("max_speed_kmh", 80.0, "km/h", (10.0, 250.0), "Maximum vehicle speed v_max",
           "Urban bus governor setting"),
     Param("max_brake_decel_mps2", 5.0, "m/s^2", (1.0, 10.0),
