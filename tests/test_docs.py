@@ -69,12 +69,12 @@ def test_no_citation_points_elsewhere():
 
 def markdown_links() -> list[tuple[str, str]]:
     pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-    links = []
+    links = set()
     for page in pages:
         for target in LINK.findall(page.read_text(encoding="utf-8")):
             if "://" not in target and not target.startswith("mailto:"):
-                links.append((str(page.relative_to(ROOT)), target))
-    return links
+                links.add((str(page.relative_to(ROOT)), target))
+    return sorted(links)
 
 
 @pytest.mark.parametrize(("page", "target"), markdown_links())
