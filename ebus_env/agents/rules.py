@@ -59,10 +59,10 @@ class RulePolicy:
     eco_comfort: bool = False
     eco_charging: bool = False
     capacity: float = 85.0  # passengers, for the occupancy (the env's bus: ``for_env``)
-    speed_cap_kmh: float = 40.0  # ECO-driving caps [P]
+    speed_cap_kmh: float = 40.0  # ECO-driving caps (docs/physics.md §10.1)
     accel_cap_mps2: float = 0.7
     baseline_setpoint_degc: float = 21.0
-    pulse_duty: float = 0.3  # ECO-charging [P]
+    pulse_duty: float = 0.3  # ECO-charging (docs/physics.md §10.3)
     pulse_full_below_soc: float = 0.6
     pulse_lightest_soc: float = 0.9
     charge_power_frac: float = 1.0

@@ -33,7 +33,7 @@ MOTOR_PARAMS = (
     Param("peak_power_kw", 200.0, "kW", (10.0, 800.0), "Motor peak mechanical power P_max",
           "Volvo 7900 E 200 kW; Solaris Urbino 12 160-250 kW"),
     Param("peak_torque_nm", 2800.0, "N m", (50.0, 10000.0), "Motor peak torque T_max",
-          "Siemens 1DB2016 class central motor [M]"),
+          "Siemens 1DB2016 class central motor (docs/physics.md §4.4)"),
     Param("regen_power_kw", 200.0, "kW", (0.0, 800.0),
           "Largest generating (regenerative) shaft power P_gen"),
     Param("max_motor_speed_rpm", 3000.0, "rpm", (500.0, 25000.0),
@@ -107,7 +107,7 @@ def loss_model_map(base_speed_frac=0.3, copper=0.04, iron=0.004, eddy=0.002, con
 
     (copper, hysteresis, eddy-current + windage, and switching/constant terms), returned in
     units of T_max omega_max (multiply by s_b). The defaults give 94-96 % near the base point
-    and 85-90 % at light load, typical of traction PMSMs with SiC/IGBT inverters [P].
+    and 85-90 % at light load, typical of traction PMSMs with SiC/IGBT inverters (docs/physics.md §4.2).
     """
     tau = np.linspace(-1.0, 1.0, n_torque)
     s = np.linspace(0.0, 1.0, n_speed)

@@ -53,7 +53,7 @@ COMMUTER_SHAPE = Table(
     presets={"commuter": TableData(
         (0.0, 5.0, 6.0, 7.5, 9.0, 10.0, 15.0, 16.5, 18.0, 19.5, 22.0, 24.0),
         (0.0, 0.0, 0.3, 1.0, 1.0, 0.4, 0.4, 1.0, 1.0, 0.3, 0.0, 0.0),
-        source="morning and evening commuter peaks [P]")},
+        source="morning and evening commuter peaks (docs/physics.md §2.1)")},
     default="commuter",
 )
 
