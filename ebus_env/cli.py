@@ -561,6 +561,27 @@ def demo(
     _run(body)
 
 
+@app.command()
+def study(
+    study_file: Annotated[Path, typer.Argument(help="Study YAML (configs/studies/)")],
+    out: Annotated[Path, typer.Option(help="Folder for rows/, summary.csv, report.html")] = Path(
+        "study"),
+    resume: Annotated[bool, typer.Option(help="Skip the scenarios already in --out")] = False,
+    use_ray: Annotated[bool, typer.Option("--ray", help="Run the scenarios on Ray")] = False,
+    address: Annotated[str | None, typer.Option(help="Join the Ray cluster at host:port")] = None,
+    workers: Annotated[int | None, typer.Option(help="CPUs of a local Ray runtime")] = None,
+):
+    """A fleet study: charging options x strategies over seeded days, by cost and grid load."""
+
+    def body():
+        from ebus_env.study.command import study_command
+
+        path = study_command(study_file, out, resume, use_ray, address, workers, _console())
+        _console().print(f"[bold green]report ->[/] {path}")
+
+    _run(body)
+
+
 def main():  # pragma: no cover
     sys.exit(app())
 
