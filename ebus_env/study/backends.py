@@ -94,12 +94,19 @@ def connect_ray(address: str | None = None, workers: int | None = None):
 
 
 def _run_ray(spec: StudySpec, todo: list[Scenario], out: Path, address, workers, say) -> None:
+    import ray as ray_module
+
+    ours = not ray_module.is_initialized()  # a runtime this call joins, it also leaves
     ray = connect_ray(address, workers)
-    task = ray_remote()
-    pending = {task.remote(spec.raw, spec.source, s.index): s for s in todo}
-    while pending:
-        ready, _ = ray.wait(list(pending), num_returns=1)
-        scenario = pending.pop(ready[0])
-        key, rows = ray.get(ready[0])
-        write_rows(out, key, rows)
-        say(f"  {scenario.name}: done")
+    try:
+        task = ray_remote()
+        pending = {task.remote(spec.raw, spec.source, s.index): s for s in todo}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            scenario = pending.pop(ready[0])
+            key, rows = ray.get(ready[0])
+            write_rows(out, key, rows)
+            say(f"  {scenario.name}: done")
+    finally:
+        if ours:
+            ray.shutdown()
