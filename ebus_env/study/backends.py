@@ -35,7 +35,8 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         Skip the scenarios whose rows ``out`` holds; without it ``out`` must hold none.
     use_ray, address, workers
         Run on Ray: join the cluster at ``address`` (``host:port``), else start a local
-        runtime with ``workers`` CPUs (None: all).
+        runtime with ``workers`` CPUs. In this process: ``workers`` threads (the compiled
+        passes release the GIL). None: every CPU (``$EBUS_THREADS``).
     """
     out = Path(out)
     done = finished(out)
@@ -52,14 +53,30 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
     if use_ray:
         _run_ray(spec, todo, out, address, workers, say)
     else:
-        from ebus_env.study.runner import run_scenario
-
-        for s in todo:
-            write_rows(out, s.key(spec), run_scenario(spec, s))
-            say(f"  {s.name}: done")
+        _run_threads(spec, todo, out, workers, say)
     if todo:
         say(f"ran {len(todo)} scenario(s) in {time.perf_counter() - t0:.1f} s")
     return read_results(out)
+
+
+def _run_threads(spec: StudySpec, todo: list[Scenario], out: Path, workers, say) -> None:
+    """The scenarios on a pool of threads; each one's rows written as it finishes."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from ebus_env.model.model import default_threads
+    from ebus_env.study.runner import run_scenario
+
+    with ThreadPoolExecutor(max_workers=workers or default_threads()) as pool:
+        futures = {pool.submit(run_scenario, spec, s): s for s in todo}
+        try:
+            for future in as_completed(futures):
+                scenario = futures[future]
+                write_rows(out, scenario.key(spec), future.result())
+                say(f"  {scenario.name}: done")
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
 
 
 def _scenario_task(raw: dict, source: str, index: int) -> tuple[str, list[dict]]:

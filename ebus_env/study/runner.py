@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import threading
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from ebus_env.study.spec import StudySpec
 SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
 
 
+_BUILD = threading.Lock()  # models are built (compiled or loaded) one at a time
+
+
 class Site:
     """The buses of every line of a study under one scenario's chargers and strategy."""
 
@@ -33,7 +37,8 @@ class Site:
         infra, strategy = scenario.infrastructure, scenario.strategy
         self.lines = []
         for line in spec.lines:
-            batch = BusBatch(spec.env_config(line, infra, strategy), line.buses)
+            with _BUILD:
+                batch = BusBatch(spec.env_config(line, infra, strategy), line.buses)
             period_s = batch.lap_period_s / line.buses if line.headway_min is None \
                 else 60.0 * line.headway_min
             batch.offsets_s = np.arange(line.buses) * period_s
@@ -84,37 +89,38 @@ class Site:
             for batch, lo, hi in zip(self.lines, self.edges[:-1], self.edges[1:], strict=True):
                 batch.values[:] = v[lo:hi]
                 batch.drive(0, batch.n)
-            connected = np.concatenate([b.inputs[:, b.rows_at[CONNECTED], :] for b in self.lines])
-            rating = np.concatenate([b.inputs[:, b.rows_at[RATING], :] for b in self.lines])
-            rows = np.concatenate([b.rows for b in self.lines])
-            live = np.arange(connected.shape[1])[None, :] < rows[:, None]
-            wanted = float((connected * live).sum())
+            lines = self.lines
+            connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
+            rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
+            rows = _gather([b.rows for b in lines])
+            live = None if rows.min() == connected.shape[1] else \
+                np.arange(connected.shape[1])[None, :] < rows[:, None]  # a short last decision
+            wanted = float(connected.sum() if live is None else (connected * live).sum())
             if infra.terminal_chargers == 0:
                 connected[:] = 0.0
                 rating[:] = math.nan
             else:
                 share_site(connected, rating, self.efficiency, plugged, waiting_since,
                            infra.terminal_chargers, limit_w, k * connected.shape[1])
-            held = float((connected * live).sum())
+            held = float(connected.sum() if live is None else (connected * live).sum())
             busy_rows += held
             wait_rows += wanted - held
-            for batch, lo, hi in zip(self.lines, self.edges[:-1], self.edges[1:], strict=True):
-                batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
-                batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
+            for batch, lo, hi in zip(lines, self.edges[:-1], self.edges[1:], strict=True):
+                if len(lines) > 1:  # one line shares its own arrays (views), the others copy
+                    batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
+                    batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
                 batch.run(0, batch.n)
-            grid_kwh = np.concatenate([b.column("grid_kwh") for b in self.lines])
-            site_kw[k] = grid_kwh.sum() / (step_s / 3600.0)
-            chem = np.concatenate([b.quantities[:, 0] for b in self.lines])
+            site_kw[k] = _gather([b.column("grid_kwh") for b in lines]).sum() / (step_s / 3600.0)
+            chem = _gather([b.quantities[:, 0] for b in lines])
             net_kwh += chem
             discharged_kwh += np.maximum(chem, 0.0)
-            distance_km += np.concatenate([b.column("distance_km") for b in self.lines])
-            lowest_soc = np.minimum(lowest_soc, np.concatenate([b.obs[:, 0] for b in self.lines]))
-            empty = np.concatenate([b.column("empty") for b in self.lines]) > 0
-            first = empty & np.isnan(empty_left_h)
+            distance_km += _gather([b.column("distance_km") for b in lines])
+            np.minimum(lowest_soc, _gather([b.obs[:, 0] for b in lines]), out=lowest_soc)
+            first = (_gather([b.column("empty") for b in lines]) > 0) & np.isnan(empty_left_h)
             if first.any():
-                left = cfg.service_h - np.concatenate([b.elapsed_h() for b in self.lines])
+                left = cfg.service_h - _gather([b.elapsed_h() for b in lines])
                 empty_left_h[first] = np.maximum(left[first], 0.0)
-            if all(b.ended()[1].all() for b in self.lines):
+            if all(b.ended()[1].all() for b in lines):
                 site_kw = site_kw[:k + 1]
                 break
         dt_s = cfg.dt_s
@@ -147,6 +153,11 @@ class Site:
             "load_step_s": step_s,
             "site_load_kw": load_kw,
         }
+
+
+def _gather(arrays: list[np.ndarray]) -> np.ndarray:
+    """The buses of every line in one array: a line's own array (a view) when there is one."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def depot(energy_kwh: np.ndarray, chargers: int, charger_kw: float, limit_kw: float,
