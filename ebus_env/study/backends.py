@@ -19,7 +19,7 @@ from ebus_env.errors import ConfigError
 from ebus_env.io.atomic import write_text_atomic
 from ebus_env.study.results import finished, read_results, write_rows
 from ebus_env.study.scenarios import Scenario, scenarios
-from ebus_env.study.spec import StudySpec, load_study
+from ebus_env.study.spec import StudySpec
 
 MAX_RETRIES = 3  # runs of a task whose worker died, after the first
 
@@ -50,49 +50,44 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         f"{len(scenarios(spec)) - len(todo)} already done, {len(todo)} to run "
         f"{'on Ray' if use_ray else 'in this process'}")
     t0 = time.perf_counter()
-    if use_ray:
-        _run_ray(spec, todo, out, address, workers, say)
-    else:
-        _run_threads(spec, todo, out, workers, say)
+
+    def finished_one(args: tuple[StudySpec, Scenario], rows: list[dict]) -> None:
+        write_rows(out, args[1].key(spec), rows)
+        say(f"  {args[1].name}: done")
+
+    from ebus_env.study.runner import run_scenario
+
+    map_tasks(run_scenario, [(spec, s) for s in todo], finished_one, use_ray=use_ray,
+              address=address, workers=workers)
     if todo:
         say(f"ran {len(todo)} scenario(s) in {time.perf_counter() - t0:.1f} s")
     return read_results(out)
 
 
-def _run_threads(spec: StudySpec, todo: list[Scenario], out: Path, workers, say) -> None:
-    """The scenarios on a pool of threads; each one's rows written as it finishes."""
+def map_tasks(task: Callable, args_list: list[tuple], on_result: Callable, *,
+              use_ray: bool = False, address: str | None = None,
+              workers: int | None = None) -> None:
+    """Call ``task(*args)`` for each ``args``, ``on_result(args, result)`` (in this thread) as
+    each one finishes: on a pool of ``workers`` threads (None: every CPU), or as Ray tasks of
+    one CPU each, run again when their worker dies (``MAX_RETRIES``)."""
+    if not args_list:
+        return
+    if use_ray:
+        _map_ray(task, args_list, on_result, address, workers)
+        return
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
     from ebus_env.model.model import default_threads
-    from ebus_env.study.runner import run_scenario
 
     with ThreadPoolExecutor(max_workers=workers or default_threads()) as pool:
-        futures = {pool.submit(run_scenario, spec, s): s for s in todo}
+        futures = {pool.submit(task, *args): args for args in args_list}
         try:
             for future in as_completed(futures):
-                scenario = futures[future]
-                write_rows(out, scenario.key(spec), future.result())
-                say(f"  {scenario.name}: done")
+                on_result(futures[future], future.result())
         except BaseException:
             for future in futures:
                 future.cancel()
             raise
-
-
-def _scenario_task(raw: dict, source: str, index: int) -> tuple[str, list[dict]]:
-    """A Ray task: rebuild the study from its mapping and run scenario ``index``."""
-    from ebus_env.study.runner import run_scenario
-
-    spec = load_study(raw)
-    scenario = scenarios(spec)[index]
-    return scenario.key(spec), run_scenario(spec, scenario)
-
-
-def ray_remote(max_retries: int = MAX_RETRIES):
-    """The scenario task as a Ray remote function (one CPU each)."""
-    import ray
-
-    return ray.remote(num_cpus=1, max_retries=max_retries)(_scenario_task)
 
 
 def connect_ray(address: str | None = None, workers: int | None = None):
@@ -110,20 +105,17 @@ def connect_ray(address: str | None = None, workers: int | None = None):
     return ray
 
 
-def _run_ray(spec: StudySpec, todo: list[Scenario], out: Path, address, workers, say) -> None:
+def _map_ray(task, args_list, on_result, address, workers) -> None:
     import ray as ray_module
 
     ours = not ray_module.is_initialized()  # a runtime this call joins, it also leaves
     ray = connect_ray(address, workers)
     try:
-        task = ray_remote()
-        pending = {task.remote(spec.raw, spec.source, s.index): s for s in todo}
+        remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(task)
+        pending = {remote.remote(*args): args for args in args_list}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
-            scenario = pending.pop(ready[0])
-            key, rows = ray.get(ready[0])
-            write_rows(out, key, rows)
-            say(f"  {scenario.name}: done")
+            on_result(pending.pop(ready[0]), ray.get(ready[0]))
     finally:
         if ours:
             ray.shutdown()
