@@ -1,5 +1,6 @@
 # Two commands do all set-up on a fresh machine (Python 3.11):
 #   make demo    install into .venv and run the main job on bundled data -> report/index.html
+#                and a small fleet study -> report/study/report.html
 #   make test    install into .venv and run the test suite
 # Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
 
@@ -17,6 +18,7 @@ $(STAMP): pyproject.toml constraints.txt
 
 demo: $(STAMP)
 	$(VENV)/bin/ebus demo --out report
+	$(VENV)/bin/ebus study configs/studies/example.yaml --out report/study --resume
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2

@@ -209,6 +209,8 @@ def test_summary_and_report(small_rows, tmp_path):
     page = (tmp_path / "report.html").read_text()
     assert page.count('src="data:image/png;base64,') == 4 and "Pareto front" in page
     assert "Cheapest feasible" in page and summary.iloc[0]["scenario"] in page
+    assert {p.name for p in tmp_path.glob("*.png")} == {"pareto.png", "cost_split.png",
+                                                         "site_load.png", "utilisation.png"}
     assert pd.read_csv(tmp_path / "summary.csv")["scenario"].tolist() == summary[
         "scenario"].tolist()
 

@@ -9,7 +9,8 @@ and Handle Outliers*, ASQC 1993, sec. 3.3) exceeds 3.5::
 (0.6745 makes the MAD a standard deviation for normal data.) The scores are taken over the logs
 that determine the parameter (the calibration's determinacy: a charging parameter on a log
 without charging wanders within its bounds and says nothing about the bus); a parameter that
-they all fit alike (MAD = 0) flags nothing.
+they all fit alike (MAD = 0) flags nothing. The fit's NRMSE is scored too: a log that the
+model fits far worse than the others' points to a bus (or a logger) that differs.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def calibrate_fleet(logs_dir: str | Path, bus: str, out: str | Path, *, columns:
               workers=workers or 1)
     table = pd.DataFrame([rows[p] for p in logs])
     params = [c for c in table.columns if "." in c and " " not in c]
-    table = flag_outliers(table, params)
+    table = flag_outliers(table, [*params, "nrmse"])  # and a log the model fits far worse
     with atomic_path(out) as tmp:
         if out.suffix == ".csv":
             table.to_csv(tmp, index=False, float_format="%.6g")

@@ -3,6 +3,7 @@ km against site peak power, the figures and the HTML report."""
 
 from __future__ import annotations
 
+import base64
 from pathlib import Path
 
 import numpy as np
@@ -131,13 +132,19 @@ def _figures(rows: pd.DataFrame, summary: pd.DataFrame, currency: str) -> list[F
 
 
 def write_summary(spec, rows: pd.DataFrame, out: str | Path) -> pd.DataFrame:
-    """Write ``summary.csv`` and ``report.html`` into ``out``; return the summary."""
+    """Write ``summary.csv``, ``report.html`` and its figures (``pareto.png``,
+    ``cost_split.png``, ``site_load.png``, ``utilisation.png``) into ``out``; return the
+    summary."""
     out = Path(out)
     summary = summarise(rows)
     with atomic_path(out / "summary.csv") as tmp:
         summary.to_csv(tmp, index=False, float_format="%.6g")
     currency = spec.costs.currency
-    pareto, cost, load, use = _figures(rows, summary, currency)
+    figures = _figures(rows, summary, currency)
+    for figure in figures:  # also as files, for slides and docs
+        with atomic_path(out / f"{figure.name}.png") as tmp:
+            tmp.write_bytes(base64.b64decode(figure.png))
+    pareto, cost, load, use = figures
     best = summary[summary["feasible"]]
     verdict = (f"Cheapest feasible: {best.iloc[0]['scenario']} at "
                f"{best.iloc[0]['cost_per_km']:.3f} {currency}/km, site peak "
