@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e ".[rl,dev]"
+	$(PIP) -e ".[rl,dev,scale]"
 	touch $(STAMP)
 
 demo: $(STAMP)
