@@ -217,3 +217,24 @@ def test_summary_and_report(small_rows, tmp_path):
 
 def test_read_results_of_an_empty_folder_is_empty(tmp_path):
     assert read_results(tmp_path).empty
+
+
+# -- command line ------------------------------------------------------------------------------
+def test_study_command_runs_and_refuses_a_bad_file(tmp_path):
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    runner = CliRunner()
+    good = tmp_path / "small.yaml"
+    good.write_text(yaml.safe_dump(small(**{"infrastructure.terminal_chargers": 2,
+                                            "days.count": 1})))
+    result = runner.invoke(app, ["study", str(good), "--out", str(tmp_path / "out"),
+                                 "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "out" / "report.html").exists() and "Pareto" in result.output
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(small(**{"costs.currency": None})))
+    result = runner.invoke(app, ["study", str(bad), "--out", str(tmp_path / "bad_out")])
+    assert result.exit_code != 0 and "costs: missing currency" in result.output
+    assert not (tmp_path / "bad_out").exists()  # nothing started
