@@ -4,6 +4,7 @@ queueing, site limit, depot), streamed results with resume, and the summary."""
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -238,3 +239,18 @@ def test_study_command_runs_and_refuses_a_bad_file(tmp_path):
     result = runner.invoke(app, ["study", str(bad), "--out", str(tmp_path / "bad_out")])
     assert result.exit_code != 0 and "costs: missing currency" in result.output
     assert not (tmp_path / "bad_out").exists()  # nothing started
+
+
+def test_a_policy_that_holds_the_baseline_equals_the_fixed_baseline(monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(__file__).parent))  # tests/study_faults.py
+    spec = load_study(small(**{"infrastructure.terminal_chargers": 1, "days.count": 1,
+                               "strategies": [{"name": "baseline"},
+                                              {"name": "held", "policy": "study_faults:die_once"}]}))
+    fixed, held = (pd.DataFrame(run_scenario(spec, s)) for s in scenarios(spec))
+    columns = [c for c in fixed.columns if c not in ("scenario", "strategy", "site_load_kw")]
+    pd.testing.assert_frame_equal(fixed[columns], held[columns])
+    with pytest.raises(ConfigError, match="policy = 'no_such_module:f': give 'module:factory'"):
+        load_study(small(**{"strategies": [{"name": "x", "policy": "no_such_module:f"}]}))
+    typo = load_study(small(**{"strategies": [{"name": "x", "policy": "study_faults:die_onse"}]}))
+    with pytest.raises(ConfigError, match="policy 'study_faults:die_onse'"):
+        run_scenario(typo, scenarios(typo)[0])

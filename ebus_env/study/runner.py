@@ -54,7 +54,7 @@ class Site:
             np.full(b.n, b.params[0, b.efficiency_at] if b.efficiency_at >= 0 else 1.0)
             for b in self.lines])
         self.settings = np.array([v for _, v in strategy.settings])
-        self.policy = _policy(strategy.policy) if strategy.policy else None
+        self.policy = policy(strategy.policy, strategy.policy_args) if strategy.policy else None
 
     def day(self, day: int) -> dict:
         """Simulate one seeded day; the row of results (before costs)."""
@@ -201,13 +201,20 @@ def run_scenario(spec: StudySpec, scenario: Scenario) -> list[dict]:
     return rows
 
 
-def _policy(target: str):
-    """A policy object from ``module:factory``: anything with ``predict(obs, deterministic)``
-    returning (actions in [-1, 1] of shape (buses, 5), state), such as the rule baselines and
-    stable-baselines3 models trained on ``EBus-v0`` (the package never imports them itself)."""
+def policy(target: str, kwargs: dict | None = None):
+    """A policy object from ``module:factory`` called with ``kwargs`` (or ``module:object``):
+    anything with ``predict(obs, deterministic=True)`` returning (actions in [-1, 1] of shape
+    (buses, 5), state) on ``EBus-v0`` observations, one row per bus, such as the rule baselines
+    and stable-baselines3 models trained on ``EBus-v0`` (the package never imports them
+    itself: the study file names them)."""
     module, _, name = target.partition(":")
-    factory = getattr(importlib.import_module(module), name)
-    policy = factory() if callable(factory) and not hasattr(factory, "predict") else factory
-    if not hasattr(policy, "predict"):
-        raise TypeError(f"policy {target!r} has no predict(obs, deterministic=True).")
-    return policy
+    try:
+        found = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as e:
+        raise ConfigError(f"policy {target!r}: {e}. Give 'module:factory' of an importable "
+                          "module.") from None
+    made = found if hasattr(found, "predict") else found(**(kwargs or {}))
+    if not hasattr(made, "predict"):
+        raise ConfigError(f"policy {target!r} gives no object with predict(obs, "
+                          "deterministic=True).")
+    return made

@@ -21,6 +21,7 @@ A study YAML has the keys of :class:`StudySpec`::
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -37,7 +38,7 @@ LINE_KEYS = {"name", "buses", "headway_min"}  # besides EnvConfig's keys
 INFRA_KEYS = ("terminal_chargers", "terminal_charger_kw", "depot_chargers", "depot_charger_kw",
               "site_limit_kw")
 DAY_KEYS = {"count", "seed", "traffic_random_frac", "ambient_random_k", "passengers_random_frac"}
-STRATEGY_KEYS = {"name", "policy", "decision_s"} | {a.name for a in ACTIONS}
+STRATEGY_KEYS = {"name", "policy", "policy_args", "decision_s"} | {a.name for a in ACTIONS}
 # fixed settings of the baseline (no ECO feature): ebus_env.envs.ebus.ACTIONS' no-cap ends
 BASELINE = {"speed_cap_kmh": 80.0, "accel_cap_mps2": 1.5, "setpoint_degc": 21.0,
             "charge_power_frac": 1.0, "pulse_duty": 1.0}
@@ -83,12 +84,14 @@ class Infrastructure:
 @dataclass(frozen=True)
 class Strategy:
     """Fixed ECO settings (physical units, the keys of ``ACTIONS``) held all day, or a policy
-    ``module:factory`` (see :mod:`ebus_env.study.policies`) asked every ``decision_s``."""
+    ``module:factory`` (called with ``policy_args``; see :func:`ebus_env.study.runner.policy`)
+    asked every ``decision_s``."""
 
     name: str
     settings: tuple  # ((action name, value), ...) in ACTIONS order
     policy: str | None = None
     decision_s: float = 60.0
+    policy_args: dict = field(default_factory=dict)  # keyword arguments of the factory
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,13 @@ def _infrastructure(data, lines) -> tuple[Infrastructure, ...]:
     return tuple(out)
 
 
+def _find_module(name: str):
+    try:
+        return importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+
+
 def _strategies(items) -> tuple[Strategy, ...]:
     if not isinstance(items, list) or not items:
         raise ConfigError("strategies: give a list of at least one strategy.")
@@ -259,12 +269,18 @@ def _strategies(items) -> tuple[Strategy, ...]:
                                       f"[{a.low:g}, {a.high:g}] {a.unit}.")
                 settings[a.name] = float(value)
         policy = item.get("policy")
-        if policy is not None and (not isinstance(policy, str) or ":" not in policy):
-            raise ConfigError(f"strategies[{i}].policy = {policy!r}: give 'module:factory' (a "
-                              "callable returning an object with predict(obs)).")
+        if policy is not None and (not isinstance(policy, str) or ":" not in policy
+                                   or _find_module(policy.partition(":")[0]) is None):
+            raise ConfigError(f"strategies[{i}].policy = {policy!r}: give 'module:factory' of "
+                              "an importable module (a callable returning an object with "
+                              "predict(obs)).")
+        policy_args = item.get("policy_args") or {}
+        if not isinstance(policy_args, dict) or (policy_args and policy is None):
+            raise ConfigError(f"strategies[{i}].policy_args = {policy_args!r}: give a mapping of "
+                              "the policy factory's keyword arguments, with 'policy'.")
         decision_s = positive(item.get("decision_s", 60.0), f"strategies[{i}].decision_s")
         if 900.0 % decision_s > 1e-9:
             raise ConfigError(f"strategies[{i}].decision_s = {decision_s}: give a divisor of "
                               "900 s (the 15-min demand interval), e.g. 60.")
-        out.append(Strategy(name, tuple(settings.items()), policy, decision_s))
+        out.append(Strategy(name, tuple(settings.items()), policy, decision_s, policy_args))
     return tuple(out)
