@@ -4,6 +4,7 @@ commands, a worker killed mid-study, and a final table equal to an undisturbed r
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -66,6 +67,7 @@ def two_node_cluster(env: dict):
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def _active_nodes(address: str, env: dict) -> int:
