@@ -166,7 +166,8 @@ def write_summary(spec, rows: pd.DataFrame, out: str | Path) -> pd.DataFrame:
         verdict_found=bool(len(best)),
         ran=f"ebus study {spec.source}: {len(summary)} scenario(s) x {spec.days.count} day(s); "
             f"{lines}",
-        settings={"climate": spec.climate or "the lines' own ambient",
+        settings={"climate": f"{spec.climate['place']}, month {spec.climate['month']}"
+                  if spec.climate else "the lines' own ambient",
                   "days": f"{spec.days.count} from seed {spec.days.seed}",
                   "options": len(spec.infrastructure), "strategies": len(spec.strategies),
                   "currency": currency},
