@@ -1,5 +1,6 @@
 # Two commands do all set-up on a fresh machine (Python 3.11):
 #   make demo    install into .venv and run the main job on bundled data -> report/index.html
+#                and a small fleet study -> report/study/report.html
 #   make test    install into .venv and run the test suite
 # Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
 
@@ -12,11 +13,12 @@ STAMP  := $(VENV)/.installed
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e ".[rl,dev]"
+	$(PIP) -e ".[rl,dev,scale]"
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/ebus demo --out report
+	$(VENV)/bin/ebus study configs/studies/example.yaml --out report/study --resume
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2

@@ -198,7 +198,8 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
 
 @app.command()
 def calibrate(
-    logs: Annotated[list[Path], typer.Argument(help="Measured log(s) with SoC (CSV/Parquet)")],
+    logs: Annotated[list[Path] | None, typer.Argument(
+        help="Measured log(s) with SoC (CSV/Parquet)")] = None,
     bus: BusOpt = "12m",
     params: Annotated[str | None, typer.Option(
         help="Free parameters, comma-separated qualified names (default: the paper's seven)")]
@@ -236,12 +237,32 @@ def calibrate(
     plot: Annotated[Path | None, typer.Option(help="Plot simulated vs measured SoC")] = None,
     history: Annotated[Path | None, typer.Option(help="Write the convergence history (CSV)")]
     = None,
+    fleet: Annotated[Path | None, typer.Option(
+        help="Calibrate each log of this folder on its own: a per-log parameter table with "
+             "outliers flagged (--out table.csv or .parquet)")] = None,
+    use_ray: Annotated[bool, typer.Option("--ray", help="With --fleet: one Ray task per log")]
+    = False,
+    address: Annotated[str | None, typer.Option(help="With --fleet: the Ray cluster's host:port")]
+    = None,
 ):
     """Fit the model's uncertain parameters to measured SoC (iSOPT, offline or windowed)."""
-    _run(lambda: _calibrate(logs, bus, params, fix, range_, windowed, validate, seed, population,
-                            iterations, categorical_load, config, with_, without, overlay,
-                            columns, gaps, fill, not no_unit_check, sparse, sparse_cycle, out,
-                            json_path, plot, history))
+    if fleet is not None:
+        from ebus_env.study.calibration import fleet_command
+
+        _run(lambda: fleet_command(fleet, bus, columns, params, seed, population, iterations,
+                                   use_ray, address, out, _console()))
+        return
+
+    def body():
+        if not logs:
+            from ebus_env.errors import ConfigError
+
+            raise ConfigError("Give the measured log(s) to calibrate on, or --fleet FOLDER.")
+        _calibrate(logs, bus, params, fix, range_, windowed, validate, seed, population,
+                   iterations, categorical_load, config, with_, without, overlay, columns, gaps,
+                   fill, not no_unit_check, sparse, sparse_cycle, out, json_path, plot, history)
+
+    _run(body)
 
 
 def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
@@ -556,6 +577,27 @@ def demo(
         from ebus_env.demo import run_demo
 
         path = run_demo(out, console=_console())
+        _console().print(f"[bold green]report ->[/] {path}")
+
+    _run(body)
+
+
+@app.command()
+def study(
+    study_file: Annotated[Path, typer.Argument(help="Study YAML (configs/studies/)")],
+    out: Annotated[Path, typer.Option(help="Folder for rows/, summary.csv, report.html")] = Path(
+        "study"),
+    resume: Annotated[bool, typer.Option(help="Skip the scenarios already in --out")] = False,
+    use_ray: Annotated[bool, typer.Option("--ray", help="Run the scenarios on Ray")] = False,
+    address: Annotated[str | None, typer.Option(help="Join the Ray cluster at host:port")] = None,
+    workers: Annotated[int | None, typer.Option(help="CPUs of a local Ray runtime")] = None,
+):
+    """A fleet study: charging options x strategies over seeded days, by cost and grid load."""
+
+    def body():
+        from ebus_env.study.command import study_command
+
+        path = study_command(study_file, out, resume, use_ray, address, workers, _console())
         _console().print(f"[bold green]report ->[/] {path}")
 
     _run(body)

@@ -9,12 +9,12 @@ and writes a self-contained HTML report with the figures, plots and a JSON of ev
 from __future__ import annotations
 
 import base64
-import html
 import io
 from pathlib import Path
 
 from ebus_env.config import ROOT, load_bus
 from ebus_env.cycles import service_day
+from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
 from ebus_env.report import BREAKDOWN_LABELS, FIGURES, write_json
 from ebus_env.simulate import run_profiles
@@ -23,26 +23,14 @@ BMW_DIR = ROOT / "data" / "measured" / "bmw_i3_tum"
 TRIPS = ("B16", "B03", "B02")
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode()
+def _tables(summary: dict) -> list[Table]:
+    rows = [[label, f"{summary[key]:.{d}f}", unit] for key, label, unit, d in FIGURES
+            if key in summary and isinstance(summary[key], float)]
+    energy = [[BREAKDOWN_LABELS.get(k, k), f"{v:.2f}"] for k, v in summary["breakdown_kwh"].items()]
+    return [Table(["figure", "value", "unit"], rows), Table(["energy", "kWh"], energy)]
 
 
-def _table(summary: dict) -> str:
-    rows = "".join(f"<tr><td>{label}</td><td>{summary[key]:.{d}f}</td><td>{unit}</td></tr>"
-                   for key, label, unit, d in FIGURES if key in summary
-                   and isinstance(summary[key], float))
-    energy = "".join(f"<tr><td>{BREAKDOWN_LABELS.get(k, k)}</td><td>{v:.2f}</td></tr>"
-                     for k, v in summary["breakdown_kwh"].items())
-    return (f"<table><tr><th>figure</th><th>value</th><th>unit</th></tr>{rows}</table>"
-            f"<table><tr><th>energy</th><th>kWh</th></tr>{energy}</table>")
-
-
-def _calibration_section(model, numbers: dict, say) -> tuple[str, str, str]:
+def _calibration_section(model, numbers: dict, say) -> Section:
     """Calibrate the BMW i3 on trip B16 with iSOPT, validate on B03."""
     import matplotlib
 
@@ -57,23 +45,22 @@ def _calibration_section(model, numbers: dict, say) -> tuple[str, str, str]:
     numbers["bmw_i3_calibration"] = result.to_json()
     say(f"BMW i3 calibrated on B16 (NRMSE {result.fit['nrmse']:.4f}), validated on B03 "
         f"(NRMSE {result.validation['nrmse']:.4f}) in {result.wall_time_s:.1f} s")
-    rows = "".join(
-        f"<tr><td>{html.escape(p)}</td><td>{result.values[p]:.4g} {result.units[p]}</td>"
-        f"<td>{html.escape(result.determinacy[p].status)}</td></tr>" for p in result.free)
-    fits = "".join(
-        f"<tr><td>{k}</td><td>{result.fit[k]:.4f}</td><td>{result.validation[k]:.4f}</td></tr>"
-        for k in ("nrmse", "rmse_pct", "max_abs_error_pct", "correlation", "energy_error_pct"))
-    table = (f"<table><tr><th>parameter</th><th>value</th><th>determined?</th></tr>{rows}"
-             "</table><table><tr><th>fit</th><th>B16 (calibration)</th><th>B03 (validation)"
-             f"</th></tr>{fits}</table>")
+    rows = [[p, f"{result.values[p]:.4g} {result.units[p]}", result.determinacy[p].status]
+            for p in result.free]
+    fits = [[k, f"{result.fit[k]:.4f}", f"{result.validation[k]:.4f}"]
+            for k in ("nrmse", "rmse_pct", "max_abs_error_pct", "correlation", "energy_error_pct")]
+    tables = [Table(["parameter", "value", "determined?"], rows),
+              Table(["fit", "B16 (calibration)", "B03 (validation)"], fits)]
     buf = io.BytesIO()
     result.plot(buf)
     plt.close("all")
-    return ("BMW i3: calibrated with iSOPT on trip B16, validated on B03", table,
-            base64.b64encode(buf.getvalue()).decode())
+    figure = Figure("bmw_i3_calibration", "calibrated SoC on B16 and B03",
+                    base64.b64encode(buf.getvalue()).decode("ascii"))
+    return Section("BMW i3: calibrated with iSOPT on trip B16, validated on B03", tables=tables,
+                   figures=[figure])
 
 
-def _diagnosis_sections(out: Path, numbers: dict, say) -> list[tuple[str, str, str]]:
+def _diagnosis_sections(out: Path, numbers: dict, say) -> list[Section]:
     """Diagnose the BMW i3 without its cabin heating on B16 + B03, and a service day with a
     hidden effect, adding it (the error ladder); each writes its own HTML and JSON report."""
     from ebus_env.diagnostics import diagnose, hidden, plots
@@ -92,12 +79,13 @@ def _diagnosis_sections(out: Path, numbers: dict, say) -> list[tuple[str, str, s
         d.write_html(out / f"{name}.html")
         numbers[f"diagnosis_{name}"] = d.to_json()
         say(f"Diagnosis, {title}: {d.sentence}")
-        rows = "".join(f"<tr><td>{html.escape(r.label)}</td><td>{r.calibration['nrmse']:.4f}"
-                       f"</td><td>{r.held_out['nrmse']:.4f}</td></tr>" for r in d.ladder)
-        table = (f"<p>{html.escape(d.sentence)} <a href='{name}.html'>Full report</a>.</p>"
-                 + (f"<table><tr><th>model</th><th>NRMSE calibration blocks</th><th>NRMSE "
-                    f"held-out blocks</th></tr>{rows}</table>" if rows else ""))
-        sections.append((f"Diagnosis: {title}", table, _png(plots.missing_power(d))))
+        rows = [[r.label, f"{r.calibration['nrmse']:.4f}", f"{r.held_out['nrmse']:.4f}"]
+                for r in d.ladder]
+        tables = [Table(["model", "NRMSE calibration blocks", "NRMSE held-out blocks"],
+                        rows)] if rows else []
+        sections.append(Section(f"Diagnosis: {title}", d.sentence, tables, [Figure.of(
+            plots.missing_power(d), f"diagnosis_{name}", "missing power over time", dpi=90)],
+            link=(f"{name}.html", "Full report")))
     return sections
 
 
@@ -118,8 +106,9 @@ def run_demo(out: Path, console=None) -> Path:
         numbers[f"{name}_sort2_day"] = s
         say(f"{name} on a 13.5 h SORT 2 day: {s['kwh_per_km']:.3f} kWh/km, "
             f"peak grid {s['peak_grid_kw']:.0f} kW, simulated in {1e3 * s['wall_time_s']:.0f} ms")
-        sections.append((f"{name} bus, 13.5 h of SORT 2 with opportunity charging",
-                         _table(s), _png(plot_trace(run.results[0]))))
+        sections.append(Section(f"{name} bus, 13.5 h of SORT 2 with opportunity charging",
+                                tables=_tables(s), figures=[Figure.of(
+                                    plot_trace(run.results[0]), f"{name}_sort2", dpi=90)]))
     i3 = load_bus("bmw_i3")
     model = i3.build()
     for trip in TRIPS:
@@ -129,19 +118,20 @@ def run_demo(out: Path, console=None) -> Path:
         numbers[f"bmw_i3_{trip}"] = s
         say(f"BMW i3 trip {trip}: SoC RMSE {s['soc_rmse_pct']:.2f} %-pts, "
             f"end error {s['soc_end_error_pct']:+.2f} %-pts (uncalibrated)")
-        sections.append((f"BMW i3 trip {trip}: model vs measured SoC (uncalibrated defaults)",
-                         _table(s), _png(plot_trace(run.results[0]))))
+        sections.append(Section(f"BMW i3 trip {trip}: model vs measured SoC (uncalibrated "
+                                "defaults)", tables=_tables(s), figures=[Figure.of(
+                                    plot_trace(run.results[0]), f"bmw_i3_{trip}", dpi=90)]))
     sections.append(_calibration_section(model, numbers, say))
     sections += _diagnosis_sections(out, numbers, say)
-    body = "".join(f"<h2>{html.escape(title)}</h2><div class='t'>{table}</div>"
-                   f"<img src='data:image/png;base64,{png}'/>" for title, table, png in sections)
-    page = ("<!doctype html><html><head><meta charset='utf-8'><title>ebus-env demo</title>"
-            "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
-            "table{border-collapse:collapse;margin:4px 16px 4px 0;display:inline-table;"
-            "vertical-align:top}td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}"
-            "img{max-width:100%}</style></head><body><h1>ebus-env demo report</h1>"
-            f"{body}</body></html>")
-    path = out / "index.html"
-    path.write_text(page)
+    path = write_report(
+        out / "index.html", "ebus-env demo report", sections,
+        ran="the 12 m and 18 m buses on a 13.5 h SORT 2 day; BMW i3 trips "
+            f"{', '.join(TRIPS)} replayed on their measured speed; iSOPT calibration of the "
+            "BMW i3 on B16, validated on B03; two diagnoses",
+        settings={"bus configs": "configs/bus/12m.yaml, 18m.yaml, bmw_i3.yaml (defaults)",
+                  "time step": f"{model.dt_s:g} s", "iSOPT seed": 0},
+        how_to_read="each section gives the figures of one run and its trace; grid energy "
+                    "includes charger losses; SoC errors are in percentage points; the "
+                    "diagnosis sections link to their full reports")
     write_json(numbers, out / "summary.json")
     return path

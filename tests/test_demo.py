@@ -10,7 +10,7 @@ from ebus_env.demo import run_demo
 def test_demo_writes_a_self_contained_report(tmp_path):
     page = run_demo(tmp_path)
     html = page.read_text()
-    assert html.count("<img src='data:image/png;base64,") == 8
+    assert html.count("src=\"data:image/png;base64,") == 8 and "data-plots-rendered=\"0/8\"" in html
     assert "12m bus" in html and "BMW i3 trip B16" in html
     numbers = json.loads((tmp_path / "summary.json").read_text())
     assert 0.8 < numbers["12m_sort2_day"]["kwh_per_km"] < 1.6

@@ -3,10 +3,9 @@ embedded as PNG, opens offline)."""
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 from pathlib import Path
+
+from ebus_env.html_report import Figure, Section, Table, write_report
 
 
 def _f(value, digits: int = 2) -> str:
@@ -94,70 +93,33 @@ def console_tables(d):
     return out
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-_STYLE = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; color: #222; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 1.6em; }
-.verdict { font-size: 1.15em; padding: 0.8em 1em; background: #eef6ee; border-left: 5px solid
-  #33a02c; } .verdict.none { background: #f4f4f4; border-color: #888; }
-table { border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }
-td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: left; }
-th { background: #f0f0f0; } img.plot { max-width: 100%; display: block; margin: 0.5em 0; }
-.meta { color: #666; font-size: 0.85em; }
-"""
-
-_SCRIPT = """
-function plotLoaded(img) {
-  img.dataset.rendered = img.naturalWidth > 0 ? "yes" : "no";
-  const all = document.querySelectorAll("img.plot");
-  const ok = Array.from(all).filter(i => i.dataset.rendered === "yes").length;
-  document.body.dataset.plotsRendered = ok + "/" + all.length;
-}
-"""
-
-
-def _table_html(header, rows) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in r) + "</tr>"
-                   for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
 def write_html(d, path: str | Path) -> None:
     """One self-contained HTML file: verdict, plots (embedded PNG) and every table."""
     from ebus_env.diagnostics.plots import FIGURES
 
-    images = {name: _png(fn(d)) for name, fn in FIGURES.items()}
-
-    def img(name, alt):
-        return (f'<img class="plot" id="plot-{name}" alt="{html.escape(alt)}" '
-                f'onload="plotLoaded(this)" src="data:image/png;base64,{images[name]}">')
-
-    parts = [f"<h1>Diagnosis of {html.escape(d.bus)} on {html.escape(', '.join(d.logs))}</h1>",
-             f'<p class="verdict{"" if d.verdict else " none"}">{html.escape(d.sentence)}</p>',
-             f'<p class="meta">Missing power from {html.escape(d.basis)}, {d.window_s:g} s '
-             f"windows; significance {d.significance:.1f} standard deviations above noise; "
-             f"{d.excluded_windows} window(s) excluded for data problems; "
-             f"{d.timings.get('total_s', 0):.1f} s.</p>",
-             "<h2>Measured and simulated SoC</h2>", img("soc", "SoC overlay"),
-             "<h2>Where it fails</h2>", img("missing_power", "missing power over time"),
-             img("modes", "missing power by operating mode"),
-             "<h2>Which effect is missing</h2>", img("attribution", "attribution"),
-             "<h2>Error ladder</h2>", img("ladder", "error ladder")]
-    for title, header, rows in tables(d):
-        parts.append(f"<h2>{html.escape(title)}</h2>{_table_html(header, rows)}")
+    images = {name: Figure.of(fn(d), name, _ALT[name]) for name, fn in FIGURES.items()}
+    sections = [Section("Measured and simulated SoC", figures=[images["soc"]]),
+                Section("Where it fails", figures=[images["missing_power"], images["modes"]]),
+                Section("Which effect is missing", figures=[images["attribution"]]),
+                Section("Error ladder", figures=[images["ladder"]])]
+    sections += [Section(title, tables=[Table(header, rows)]) for title, header, rows in tables(d)]
     if d.set_aside:
-        parts.append("<h2>Candidates set aside</h2>" + _table_html(
-            ["effect", "why"], [[a["effect"], a["why"]] for a in d.set_aside]))
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ebus diagnose: "
-            f"{html.escape(d.bus)}</title><style>{_STYLE}</style><script>{_SCRIPT}</script>"
-            f"</head><body data-plots-rendered='0/{len(images)}'>{''.join(parts)}</body></html>")
-    Path(path).write_text(page, encoding="utf-8")
+        sections.append(Section("Candidates set aside", tables=[Table(
+            ["effect", "why"], [[a["effect"], a["why"]] for a in d.set_aside])]))
+    write_report(
+        path, f"Diagnosis of {d.bus} on {', '.join(d.logs)}", sections,
+        verdict=d.sentence, verdict_found=bool(d.verdict),
+        ran=f"ebus diagnose: the {d.bus} model replayed on {', '.join(d.logs)}",
+        settings={"missing power from": d.basis, "window": f"{d.window_s:g} s",
+                  "significance": f"{d.significance:.1f} standard deviations above noise",
+                  "windows excluded for data problems": d.excluded_windows,
+                  "run time": f"{d.timings.get('total_s', 0):.1f} s"},
+        how_to_read="missing power is the battery power the measured SoC implies minus the "
+                    "model's; the ranking gives the share of it each candidate effect explains "
+                    "on held-out windows, the ladder the error as effects are added and "
+                    "re-calibrated")
+
+
+_ALT = {"soc": "SoC overlay", "missing_power": "missing power over time",
+        "modes": "missing power by operating mode", "attribution": "attribution",
+        "ladder": "error ladder"}

@@ -1,0 +1,121 @@
+"""Where a study's scenarios run: in this process (the default) or as Ray tasks.
+
+Either way each scenario's rows are written as soon as it finishes
+(:func:`ebus_env.study.results.write_rows`), so a stopped study resumes where it stopped. On
+Ray each scenario is one task; a task whose worker dies is run again by Ray (``max_retries``),
+and since a scenario's rows depend only on the study file and its seeds, the retried rows equal
+those of an undisturbed run.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import yaml
+
+from ebus_env.errors import ConfigError
+from ebus_env.io.atomic import write_text_atomic
+from ebus_env.study.results import finished, read_results, write_rows
+from ebus_env.study.scenarios import Scenario, scenarios
+from ebus_env.study.spec import StudySpec
+
+MAX_RETRIES = 3  # runs of a task whose worker died, after the first
+
+
+def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray: bool = False,
+              address: str | None = None, workers: int | None = None,
+              say: Callable[[str], None] = print):
+    """Run every scenario of ``spec`` not yet in ``out`` and return all rows (pandas).
+
+    Parameters
+    ----------
+    resume
+        Skip the scenarios whose rows ``out`` holds; without it ``out`` must hold none.
+    use_ray, address, workers
+        Run on Ray: join the cluster at ``address`` (``host:port``), else start a local
+        runtime with ``workers`` CPUs. In this process: ``workers`` threads (the compiled
+        passes release the GIL). None: every CPU (``$EBUS_THREADS``).
+    """
+    out = Path(out)
+    done = finished(out)
+    if done and not resume:
+        raise ConfigError(f"{out} already holds the rows of {len(done)} scenario(s): add "
+                          "--resume to finish that study, or give another --out folder.")
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "study.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
+    todo = [s for s in scenarios(spec) if s.key(spec) not in done]
+    say(f"study '{spec.name}': {len(scenarios(spec))} scenario(s) x {spec.days.count} day(s); "
+        f"{len(scenarios(spec)) - len(todo)} already done, {len(todo)} to run "
+        f"{'on Ray' if use_ray else 'in this process'}")
+    t0 = time.perf_counter()
+
+    def finished_one(args: tuple[StudySpec, Scenario], rows: list[dict]) -> None:
+        write_rows(out, args[1].key(spec), rows)
+        say(f"  {args[1].name}: done")
+
+    from ebus_env.study.runner import run_scenario
+
+    map_tasks(run_scenario, [(spec, s) for s in todo], finished_one, use_ray=use_ray,
+              address=address, workers=workers)
+    if todo:
+        say(f"ran {len(todo)} scenario(s) in {time.perf_counter() - t0:.1f} s")
+    return read_results(out)
+
+
+def map_tasks(task: Callable, args_list: list[tuple], on_result: Callable, *,
+              use_ray: bool = False, address: str | None = None,
+              workers: int | None = None) -> None:
+    """Call ``task(*args)`` for each ``args``, ``on_result(args, result)`` (in this thread) as
+    each one finishes: on a pool of ``workers`` threads (None: every CPU), or as Ray tasks of
+    one CPU each, run again when their worker dies (``MAX_RETRIES``)."""
+    if not args_list:
+        return
+    if use_ray:
+        _map_ray(task, args_list, on_result, address, workers)
+        return
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from ebus_env.model.model import default_threads
+
+    with ThreadPoolExecutor(max_workers=workers or default_threads()) as pool:
+        futures = {pool.submit(task, *args): args for args in args_list}
+        try:
+            for future in as_completed(futures):
+                on_result(futures[future], future.result())
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+def connect_ray(address: str | None = None, workers: int | None = None):
+    """Join the cluster at ``address``, or start a local runtime (``workers`` CPUs)."""
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--ray needs Ray: pip install -c constraints.txt -e '.[scale]'") \
+            from None
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    return ray
+
+
+def _map_ray(task, args_list, on_result, address, workers) -> None:
+    import ray as ray_module
+
+    ours = not ray_module.is_initialized()  # a runtime this call joins, it also leaves
+    ray = connect_ray(address, workers)
+    try:
+        remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(task)
+        pending = {remote.remote(*args): args for args in args_list}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            on_result(pending.pop(ready[0]), ray.get(ready[0]))
+    finally:
+        if ours:
+            ray.shutdown()

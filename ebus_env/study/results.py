@@ -1,0 +1,48 @@
+"""The study's results on disk: a Parquet dataset, one file per finished scenario.
+
+``<out>/rows/<scenario key>.parquet`` holds the scenario's rows (one per day), written to a
+temporary file in the same folder and renamed, so a file that exists is complete: an
+interrupted study resumes by skipping the scenarios whose file is there. The folder opens in
+pandas as one table: ``pd.read_parquet("study/rows")``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ebus_env.io.atomic import atomic_path
+
+ROWS = "rows"
+
+
+def rows_dir(out: str | Path) -> Path:
+    return Path(out) / ROWS
+
+
+def finished(out: str | Path) -> set[str]:
+    """Keys of the scenarios whose rows are on disk."""
+    folder = rows_dir(out)
+    return {p.stem for p in folder.glob("*.parquet")} if folder.exists() else set()
+
+
+def write_rows(out: str | Path, key: str, rows: list[dict]) -> Path:
+    """Write one scenario's rows atomically (temporary file, then rename)."""
+    folder = rows_dir(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    frame = pd.DataFrame(rows)
+    frame.insert(0, "scenario_key", key)
+    path = folder / f"{key}.parquet"
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, index=False)
+    return path
+
+
+def read_results(out: str | Path) -> pd.DataFrame:
+    """Every finished scenario's rows, in scenario then day order."""
+    files = sorted(rows_dir(out).glob("*.parquet"))
+    if not files:
+        return pd.DataFrame()
+    frame = pd.concat([pd.read_parquet(p) for p in files], ignore_index=True)
+    return frame.sort_values(["scenario_key", "day"], ignore_index=True)

@@ -1,0 +1,220 @@
+"""One scenario of a study: every line's buses through each seeded day at one site.
+
+The buses are the environments' compiled batches (:class:`ebus_env.envs.batch.BusBatch`, one
+per line); each decision the terminal's plugs and grid limit are shared row by row at 10 Hz by
+the fleet env's compiled :func:`ebus_env.envs.fleet.share_site` (first come, first served at a
+busy charger, ratings scaled together to the site limit). After service the depot recharges
+every bus to its start SoC on the depot chargers, behind the same site limit. All scenarios
+see the same days (common random numbers), so differences between them are not noise.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import threading
+
+import numpy as np
+
+from ebus_env.envs.batch import BusBatch
+from ebus_env.envs.ebus import ACTIONS, physical
+from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
+from ebus_env.errors import ConfigError
+from ebus_env.study.scenarios import Scenario
+from ebus_env.study.spec import StudySpec
+
+SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
+
+
+_BUILD = threading.Lock()  # models are built (compiled or loaded) one at a time
+
+
+class Site:
+    """The buses of every line of a study under one scenario's chargers and strategy."""
+
+    def __init__(self, spec: StudySpec, scenario: Scenario):
+        self.spec, self.scenario = spec, scenario
+        infra, strategy = scenario.infrastructure, scenario.strategy
+        self.lines = []
+        for line in spec.lines:
+            with _BUILD:
+                batch = BusBatch(spec.env_config(line, infra, strategy), line.buses)
+            period_s = batch.lap_period_s / line.buses if line.headway_min is None \
+                else 60.0 * line.headway_min
+            batch.offsets_s = np.arange(line.buses) * period_s
+            self.lines.append(batch)
+        first = self.lines[0]
+        for batch in self.lines:
+            if batch.rows_at[CONNECTED] < 0 or batch.rows_at[RATING] < 0:
+                raise ConfigError(f"The bus '{batch.config.bus}' has no charger effect.")
+        self.cfg = first.config
+        self.n = sum(b.n for b in self.lines)
+        self.edges = np.cumsum([0] + [b.n for b in self.lines])
+        self.efficiency = np.concatenate([
+            np.full(b.n, b.params[0, b.efficiency_at] if b.efficiency_at >= 0 else 1.0)
+            for b in self.lines])
+        self.settings = np.array([v for _, v in strategy.settings])
+        self.policy = policy(strategy.policy, strategy.policy_args) if strategy.policy else None
+
+    def day(self, day: int) -> dict:
+        """Simulate one seeded day; the row of results (before costs)."""
+        spec, infra, cfg = self.spec, self.scenario.infrastructure, self.cfg
+        rng = np.random.default_rng([spec.days.seed, day])
+        values = np.tile(self.settings, (self.n, 1))
+        for batch in self.lines:
+            for b in range(batch.n):
+                batch.reset(b, rng)
+        # traffic: each bus's top speed that day, lowered by up to traffic_random_frac
+        slow = 1.0 - rng.uniform(0.0, spec.days.traffic_random_frac, self.n)
+        step_s = cfg.decision_s
+        n_steps = math.ceil(cfg.service_h * 3600.0 / step_s - 1e-9)
+        site_kw = np.zeros(n_steps)
+        plugged = np.zeros(self.n, np.bool_)
+        waiting_since = np.full(self.n, -1, np.int64)
+        lowest_soc = np.full(self.n, cfg.soc_start_pct / 100.0)
+        net_kwh = np.zeros(self.n)  # battery chemical energy, net (what the depot restores)
+        discharged_kwh = np.zeros(self.n)
+        distance_km = np.zeros(self.n)
+        empty_left_h = np.full(self.n, np.nan)
+        busy_rows = wait_rows = 0.0
+        limit_w = 1e3 * infra.site_limit_kw
+        for k in range(n_steps):
+            if self.policy is not None:
+                obs = np.concatenate([b.obs for b in self.lines])
+                obs[:, PLUGGED] = plugged
+                values = physical(np.clip(np.asarray(self.policy.predict(
+                    obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)), -1, 1))
+            v = values.copy()
+            v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
+            for batch, lo, hi in zip(self.lines, self.edges[:-1], self.edges[1:], strict=True):
+                batch.values[:] = v[lo:hi]
+                batch.drive(0, batch.n)
+            lines = self.lines
+            connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
+            rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
+            rows = _gather([b.rows for b in lines])
+            live = None if rows.min() == connected.shape[1] else \
+                np.arange(connected.shape[1])[None, :] < rows[:, None]  # a short last decision
+            wanted = float(connected.sum() if live is None else (connected * live).sum())
+            if infra.terminal_chargers == 0:
+                connected[:] = 0.0
+                rating[:] = math.nan
+            else:
+                share_site(connected, rating, self.efficiency, plugged, waiting_since,
+                           infra.terminal_chargers, limit_w, k * connected.shape[1])
+            held = float(connected.sum() if live is None else (connected * live).sum())
+            busy_rows += held
+            wait_rows += wanted - held
+            for batch, lo, hi in zip(lines, self.edges[:-1], self.edges[1:], strict=True):
+                if len(lines) > 1:  # one line shares its own arrays (views), the others copy
+                    batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
+                    batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
+                batch.run(0, batch.n)
+            site_kw[k] = _gather([b.column("grid_kwh") for b in lines]).sum() / (step_s / 3600.0)
+            chem = _gather([b.quantities[:, 0] for b in lines])
+            net_kwh += chem
+            discharged_kwh += np.maximum(chem, 0.0)
+            distance_km += _gather([b.column("distance_km") for b in lines])
+            np.minimum(lowest_soc, _gather([b.obs[:, 0] for b in lines]), out=lowest_soc)
+            first = (_gather([b.column("empty") for b in lines]) > 0) & np.isnan(empty_left_h)
+            if first.any():
+                left = cfg.service_h - _gather([b.elapsed_h() for b in lines])
+                empty_left_h[first] = np.maximum(left[first], 0.0)
+            if all(b.ended()[1].all() for b in lines):
+                site_kw = site_kw[:k + 1]
+                break
+        dt_s = cfg.dt_s
+        depot_kw, not_recharged, depot_busy_h = depot(
+            np.maximum(net_kwh, 0.0) / self.efficiency, infra.depot_chargers,
+            infra.depot_charger_kw, infra.site_limit_kw, step_s / 3600.0,
+            24.0 - len(site_kw) * step_s / 3600.0)
+        load_kw = np.concatenate([site_kw, depot_kw])
+        blocks = int(900.0 // step_s)
+        whole = len(load_kw) // blocks * blocks
+        service_rows = cfg.service_h * 3600.0 / dt_s
+        return {
+            "buses": self.n,
+            "distance_km": float(distance_km.sum()),
+            "battery_discharged_kwh": float(discharged_kwh.sum()),
+            "terminal_grid_kwh": float(site_kw.sum() * step_s / 3600.0),
+            "depot_grid_kwh": float(depot_kw.sum() * step_s / 3600.0),
+            "grid_kwh": float(load_kw.sum() * step_s / 3600.0),
+            "site_peak_kw": float(load_kw.max()),
+            "site_peak_15min_kw": float(load_kw[:whole].reshape(-1, blocks).mean(axis=1).max()),
+            "lowest_soc_pct": float(100.0 * lowest_soc.min()),
+            "buses_short": int(np.isfinite(empty_left_h).sum()),
+            "buses_below_reserve": int((100.0 * lowest_soc < cfg.reserve_soc_pct).sum()),
+            "buses_not_recharged": int(not_recharged),
+            "service_hours_lost": float(np.nansum(empty_left_h)),
+            "charger_utilisation": busy_rows / (max(infra.terminal_chargers, 1) * service_rows),
+            "charger_wait_bus_h": wait_rows * dt_s / 3600.0,
+            "depot_utilisation": depot_busy_h / max(infra.depot_chargers, 1)
+            / (24.0 - cfg.service_h),
+            "load_step_s": step_s,
+            "site_load_kw": load_kw,
+        }
+
+
+def _gather(arrays: list[np.ndarray]) -> np.ndarray:
+    """The buses of every line in one array: a line's own array (a view) when there is one."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
+def depot(energy_kwh: np.ndarray, chargers: int, charger_kw: float, limit_kw: float,
+          step_h: float, window_h: float) -> tuple[np.ndarray, int, float]:
+    """Overnight depot charging: each bus's grid energy ``energy_kwh`` on ``chargers`` plugs of
+    ``charger_kw``, first come (bus order) first served, their total draw scaled to
+    ``limit_kw``, in steps of ``step_h`` over ``window_h``. Returns the depot's mean power per
+    step [kW], the buses not fully recharged in the window, and the plug-hours used."""
+    n_steps = max(int(round(window_h / step_h)), 0)
+    left = np.array(energy_kwh, float)
+    load = np.zeros(n_steps)
+    busy_h = 0.0
+    for k in range(n_steps):
+        queue = np.flatnonzero(left > 1e-9)[:chargers]
+        if queue.size == 0:
+            break
+        scale = min(1.0, limit_kw / (queue.size * charger_kw))
+        take = np.minimum(left[queue], charger_kw * scale * step_h)
+        left[queue] -= take
+        load[k] = take.sum() / step_h
+        busy_h += queue.size * step_h
+    return load, int((left > 1e-6).sum()), busy_h
+
+
+def run_scenario(spec: StudySpec, scenario: Scenario) -> list[dict]:
+    """Every day of ``scenario``: one row each, with the costs per km."""
+    site = Site(spec, scenario)
+    infra, costs = scenario.infrastructure, spec.costs
+    rows = []
+    for day in range(spec.days.count):
+        row = site.day(day)
+        cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
+                         site.cfg.start_time_h, row["site_peak_15min_kw"], infra.installed_kw,
+                         row["battery_discharged_kwh"])
+        km = max(row["distance_km"], 1e-9)
+        row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
+        row["cost_per_km"] = sum(cost.values()) / km
+        row["cost_day"] = sum(cost.values())
+        row["kwh_per_km"] = row["grid_kwh"] / km
+        rows.append({**scenario.columns(), "day": day, **row})
+    return rows
+
+
+def policy(target: str, kwargs: dict | None = None):
+    """A policy object from ``module:factory`` called with ``kwargs`` (or ``module:object``):
+    anything with ``predict(obs, deterministic=True)`` returning (actions in [-1, 1] of shape
+    (buses, 5), state) on ``EBus-v0`` observations, one row per bus, such as the rule baselines
+    and stable-baselines3 models trained on ``EBus-v0`` (the package never imports them
+    itself: the study file names them)."""
+    module, _, name = target.partition(":")
+    try:
+        found = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as e:
+        raise ConfigError(f"policy {target!r}: {e}. Give 'module:factory' of an importable "
+                          "module.") from None
+    made = found if hasattr(found, "predict") else found(**(kwargs or {}))
+    if not hasattr(made, "predict"):
+        raise ConfigError(f"policy {target!r} gives no object with predict(obs, "
+                          "deterministic=True).")
+    return made
