@@ -24,8 +24,8 @@ How a day is made
    (a cycle's ``pwr_max_chrg_watts`` had no effect on the pack in 3.1.0). So FASTSim's pack is
    a large energy meter: its energy out per step is taken from its SoC history, and the logged
    SoC of the bus's real pack (capacity ``capacity_kwh``) is rebuilt from it, with the plan's
-   opportunity charging added at layovers by this module (:func:`rebuild_soc`): constant power
-   ``charger_kw`` times a charge efficiency up to ``CV_SOC_FRAC``, then a linear taper.
+   opportunity charging added at layovers by this module (:func:`rebuild_soc`): the rated
+   power times a charge efficiency, tapering linearly to zero at the day's stop SoC.
    A whole-day run starts with a 10 min pre-trip standstill (auxiliaries and HVAC on, dropped
    from the log): a run that starts at ``max_soc`` would otherwise refuse regeneration above
    it on a downhill start. A run whose FASTSim pack returns to full raises an error.
@@ -37,11 +37,18 @@ physics; the bus's pack has no chemistry (``chemistry: None`` in the truth recor
 
 from __future__ import annotations
 
+import argparse
 import copy
+import dataclasses
+import json
+import time
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from benchmarks.truth import cases as truthsim
 from benchmarks.truth.days import route_day
 from benchmarks.truth.degrade import degrade
 
@@ -80,22 +87,19 @@ MOTOR_HEADROOM = 3.0
 FASTSIM_PACK_KWH = 5000.0  # FASTSim's pack: an energy meter that never runs empty in a day
 PRETRIP_S = 600
 CHARGE_EFFICIENCY = 0.93  # charger to cells (assumed)
-CV_SOC_FRAC = 0.90  # charge power tapers linearly from here ...
-FULL_SOC_FRAC = 0.97  # ... to zero here
+TAPER_FRAC = 0.05  # the charge power tapers linearly over this SoC below the stop SoC
 BUS_CABIN_M = (12.0, 2.55, 2.3)  # length, width, interior height (EU maximum width 2.55 m)
 CAR_CABIN_HEIGHT_M = 1.2  # interior height assumed for the donor car's cabin volume
 HVAC_THERMAL_MAX_W = 30000.0  # assumed rating of a 12 m bus roof unit
+AIR_CP_J_PER_KG_K = 1005.0
+# FASTSim's cabin-to-ambient conductance of the bus cabin with the Leaf's heat-transfer
+# coefficients, -sum(Q_from_ambient) / sum(T_cab - T_amb) over four 3 h route days (cold and
+# hot, rt7/rt44/rt45): 299-321 W/K
+FASTSIM_CABIN_W_PER_K = 315.0
 
-# hidden effect -> the library effect that should be named, and the day's climate
-HIDDEN = {
-    "road_grade": ("road_grade", "mild"),
-    "cabin_heating": ("cabin_hvac", "cold"),
-    "cabin_cooling": ("cabin_hvac", "hot"),
-    "passenger_mass": ("passenger_mass", "mild"),
-    "aux_time_of_day": ("aux_schedule", "mild"),
-}
-# the library's default time-of-day table is 500 W in the dark hours (ebus_env aux_schedule)
-LIBRARY_SCHEDULE_W = 500.0
+# the hidden effects FASTSim's own models express (names, verdicts and climates as in cases.py)
+HIDDEN = ("road_grade", "cabin_heating", "cabin_cooling", "passenger_mass", "aux_schedule")
+HVAC_EFFECTS = ("cabin_heating", "cabin_cooling")
 
 
 def require_fastsim() -> None:
@@ -113,7 +117,7 @@ def _donor(name: str) -> dict:
 def draw_base(rng: np.random.Generator) -> dict:
     """Base parameters of one day's bus, drawn over the spreads of the bench: curb mass +-15 %,
     C_rr +-30 %, c_d A +-20 % (through c_d), drivetrain efficiency +-5 points, base auxiliaries
-    2-9 kW, capacity +-10 %, and the day's start SoC."""
+    2-9 kW and capacity +-10 %."""
     return {
         "curb_mass_kg": NOMINAL["curb_mass_kg"] * rng.uniform(0.85, 1.15),
         "rolling_coef": NOMINAL["rolling_coef"] * rng.uniform(0.7, 1.3),
@@ -123,17 +127,27 @@ def draw_base(rng: np.random.Generator) -> dict:
         "aux_base_w": rng.uniform(2000.0, 9000.0),
         "capacity_kwh": NOMINAL["capacity_kwh"] * rng.uniform(0.9, 1.1),
         "motor_kw": NOMINAL["motor_kw"],
-        "start_soc_frac": rng.uniform(0.75, 0.92),
     }
 
 
 def draw_hvac(rng: np.random.Generator, hidden: str) -> dict:
-    """The cabin of an HVAC day: setpoint, envelope heat-transfer scale and glazing."""
+    """The cabin of an HVAC day: setpoint, envelope conductance, fresh air and glazing.
+
+    FASTSim's lumped cabin has one conductance to ambient and no fresh-air term, so its
+    heat-transfer coefficients are scaled to carry both the envelope (``ua_w_per_k``) and the
+    fresh air (``fresh_air_kg_per_s`` times c_p of air): ``conductance_scale`` is their sum
+    over ``FASTSIM_CABIN_W_PER_K``, FASTSim's own conductance for the bus cabin.
+    """
+    heating = hidden == "cabin_heating"
+    ua_w_per_k = rng.uniform(300.0, 550.0)  # the envelope spread of cases.py
+    fresh_kg_per_s = rng.uniform(0.3, 0.5)  # the fresh-air spread of cases.py (EN 14750-1)
     return {
-        "setpoint_degc": rng.uniform(19.0, 22.0) if hidden == "cabin_heating"
-        else rng.uniform(21.0, 24.0),
-        "shell_htc_scale": rng.uniform(0.7, 1.3),  # on FASTSim's per-area envelope coefficient
-        "solar_area_m2": rng.uniform(2.0, 5.0),  # transmitted glazing area tau_g A_glass
+        "setpoint_degc": rng.uniform(17.0, 20.0) if heating else rng.uniform(22.0, 25.0),
+        "ua_w_per_k": ua_w_per_k,
+        "fresh_air_kg_per_s": fresh_kg_per_s,
+        "conductance_scale": (ua_w_per_k + fresh_kg_per_s * AIR_CP_J_PER_KG_K)
+        / FASTSIM_CABIN_W_PER_K,
+        "solar_area_m2": rng.uniform(3.0, 6.0),  # transmitted glazing area tau_g A_glass
     }
 
 
@@ -175,7 +189,8 @@ def bus_vehicle(base: dict, mass_kg: float, aux_w: float, hvac: dict | None = No
     * on HVAC days ``cabin`` and ``hvac`` from the Leaf thermal file: the cabin's length and
       width of a 12 m bus, its heat capacitance and the PID gains scaled by the ratio of
       interior volumes (so the controller's time constants stay as FASTSim calibrated them),
-      the envelope coefficient by the day's draw, a heat pump, and a bus roof unit's rating.
+      the heat-transfer coefficients to ambient (moving and standing) by the day's
+      ``conductance_scale`` (:func:`draw_hvac`), a heat pump, and a bus roof unit's rating.
     """
     veh = copy.deepcopy(_donor(BASE_VEHICLE))
     veh["name"] = "12 m city bus (scaled from the FASTSim Renault Zoe ZE50)"
@@ -202,7 +217,9 @@ def bus_vehicle(base: dict, mass_kg: float, aux_w: float, hvac: dict | None = No
             lumped["length_meters"] * lumped["width_meters"] * CAR_CABIN_HEIGHT_M)
         lumped.update(length_meters=length_m, width_meters=width_m)
         lumped["heat_capacitance_joules_per_kelvin"] *= volume_ratio
-        lumped["cab_shell_htc_to_amb_watts_per_square_meter_kelvin"] *= hvac["shell_htc_scale"]
+        for key in ("cab_shell_htc_to_amb_watts_per_square_meter_kelvin",
+                    "cab_htc_to_amb_stop_watts_per_square_meter_kelvin"):
+            lumped[key] *= hvac["conductance_scale"]
         start_k = KELVIN + (cabin_temp_degc if cabin_temp_degc is not None
                             else hvac["setpoint_degc"])
         lumped["state"].update(temperature_kelvin=start_k, temp_prev_kelvin=start_k)
@@ -268,20 +285,19 @@ def run_fastsim(veh: dict, speed_mps, grade_frac, ambient_degc, solar_w, altitud
 
 
 def rebuild_soc(energy_out_j: np.ndarray, charger_w: np.ndarray, capacity_kwh: float,
-                start_soc_frac: float, dt_s: float = 1.0) -> np.ndarray:
+                start_soc_frac: float, stop_soc_frac: float, dt_s: float = 1.0) -> np.ndarray:
     """SoC of the bus's pack [1] from the energy FASTSim's pack gave out per step [J] and the
     charger's rated power per step [W] (0 off the charger).
 
     ``SoC_k = SoC_{k-1} - E_out,k / E_cap + eta_c P_c f(SoC_{k-1}) dt / E_cap`` with
-    ``f = clip((FULL - SoC) / (FULL - CV), 0, 1)``, a linear taper of the charge power above
-    ``CV_SOC_FRAC``.
+    ``f = clip((SoC_stop - SoC) / TAPER, 0, 1)``: full power up to ``TAPER`` below the
+    charger's stop SoC, then a linear taper to zero at it (the constant-voltage phase).
     """
     e_cap_j = capacity_kwh * 3.6e6
     soc = np.empty(len(energy_out_j))
     soc[0] = start_soc_frac
-    span = FULL_SOC_FRAC - CV_SOC_FRAC
     for k in range(1, len(soc)):
-        taper = min(max((FULL_SOC_FRAC - soc[k - 1]) / span, 0.0), 1.0)
+        taper = min(max((stop_soc_frac - soc[k - 1]) / TAPER_FRAC, 0.0), 1.0)
         soc[k] = (soc[k - 1] - energy_out_j[k] / e_cap_j
                   + CHARGE_EFFICIENCY * charger_w[k] * taper * dt_s / e_cap_j)
     if soc.min() < 0.02:
@@ -319,12 +335,13 @@ def aux_schedule_w(clock_h: np.ndarray, speed_mps: np.ndarray, on_before_h: floa
     return np.where(held, power_w, 0.0)
 
 
-def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict) -> pd.DataFrame:
+def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
+             soc0_frac: float = 0.8, charge_stop_frac: float = 0.9) -> pd.DataFrame:
     """Clean truth trace of one day (1 Hz): plan + base parameters + hidden effect.
 
     Returns ``time_s, clock_h, speed_mps, soc_frac, ambient_degc, charging, charger_kw,
-    door_open, altitude_m, passengers`` plus the FASTSim signals ``energy_out_j`` (pack energy
-    out per step), ``distance_m``, ``aux_w``, ``mass_kg`` and, on HVAC days,
+    door_open, altitude_m, passengers`` plus ``energy_out_j`` (FASTSim's pack energy out per
+    step), ``distance_m``, ``aux_w``, ``p_hidden_w`` (a hidden load), ``mass_kg`` and, on HVAC days,
     ``cabin_temp_degc``, ``hvac_elec_w``, ``hvac_thermal_w``, ``cabin_from_ambient_w``.
     """
     require_fastsim()
@@ -334,16 +351,18 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict) -
     altitude = plan["altitude_m"].to_numpy(float) if hidden == "road_grade" \
         else np.full(n, float(plan["altitude_m"].iloc[0]))
     ambient = plan["ambient_degc"].to_numpy(float)
-    hvac = effect if hidden in ("cabin_heating", "cabin_cooling") else None
+    hvac = effect if hidden in HVAC_EFFECTS else None
     solar = plan["solar_w_per_m2"].to_numpy(float) * hvac["solar_area_m2"] if hvac \
         else np.zeros(n)
     passengers = plan["passengers"].to_numpy(int) if hidden == "passenger_mass" \
         else np.zeros(n, dtype=int)
     mass = base["curb_mass_kg"] + passengers * effect.get("passenger_mass_kg", 0.0)
-    aux = np.full(n, base["aux_base_w"])
-    if hidden == "aux_time_of_day":
-        aux += aux_schedule_w(plan["clock_h"].to_numpy(float), speed, effect["on_before_h"],
-                              effect["on_after_h"], effect["power_w"])
+    hidden_w = np.zeros(n)
+    if hidden == "aux_schedule":  # the lights of cases.py
+        hidden_w = aux_schedule_w(plan["clock_h"].to_numpy(float), speed,
+                                  effect["lights_off_h"], effect["lights_on_h"],
+                                  effect["lights_w"])
+    aux = base["aux_base_w"] + hidden_w
     pieces = _pieces(speed, mass, aux)
     pretrip = PRETRIP_S if len(pieces) == 1 else 0  # chained days are flat: see the docstring
     runs = []
@@ -366,7 +385,7 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict) -
         "clock_h": plan["clock_h"].to_numpy(float),
         "speed_mps": hist["speed_mps"],
         "soc_frac": rebuild_soc(hist["energy_out_j"], charger_w, base["capacity_kwh"],
-                                base["start_soc_frac"]),
+                                soc0_frac, charge_stop_frac),
         "ambient_degc": ambient,
         "charging": plan["charging"].to_numpy(int),
         "charger_kw": plan["charger_kw"].to_numpy(float),
@@ -376,12 +395,14 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict) -
         "energy_out_j": hist["energy_out_j"],
         "distance_m": hist["distance_m"],
         "aux_w": aux,
+        "p_hidden_w": hidden_w,
         "mass_kg": mass,
     })
     if hvac is not None:
         clean["cabin_temp_degc"] = hist["cabin_temp_k"] - KELVIN
         for key in ("hvac_elec_w", "hvac_thermal_w", "cabin_from_ambient_w"):
             clean[key] = hist[key]
+        clean["p_hidden_w"] = hist["hvac_elec_w"]
     clean.attrs.update(plan.attrs)
     return clean
 
@@ -391,91 +412,113 @@ def consumption_kwh_per_km(clean: pd.DataFrame) -> float:
     return float(clean["energy_out_j"].sum() / 3.6e6 / (clean["distance_m"].iloc[-1] / 1e3))
 
 
-def cases(n_per_effect: int = 10, n_control: int = 30, seed: int = 2031) -> list[dict]:
-    """The FASTSim case list: ``n_per_effect`` days per hidden effect and ``n_control`` days
-    with nothing hidden, each with its own seed drawn from ``seed``."""
-    rng = np.random.default_rng(seed)
-    hidden_list = [h for h in HIDDEN for _ in range(n_per_effect)] + [None] * n_control
-    out = []
-    for i, hidden in enumerate(hidden_list):
-        day_seed = int(rng.integers(2**31))
-        if hidden == "aux_time_of_day":  # the day must see both dawn and dusk
-            start, hours = rng.uniform(4.5, 5.5), rng.uniform(12.5, 14.0)
-        else:
-            start, hours = rng.uniform(5.0, 9.0), rng.uniform(6.0, 10.0)
-        # relative time only where nothing hidden depends on the clock
-        relative = bool(hidden in (None, "road_grade", "passenger_mass") and rng.random() < 0.3)
-        out.append({"case_id": f"fastsim_{i:03d}_{hidden or 'control'}", "source": SOURCE,
-                    "hidden": hidden, "seed": day_seed, "start_clock_h": round(start, 3),
-                    "hours": round(hours, 3), "relative_time": relative})
-    return out
-
-
-def draw_effect(rng: np.random.Generator, hidden: str | None) -> dict:
-    """The hidden effect's own truth values."""
-    if hidden in ("cabin_heating", "cabin_cooling"):
-        return draw_hvac(rng, hidden)
-    if hidden == "passenger_mass":
-        return {"passenger_mass_kg": rng.uniform(65.0, 80.0)}  # R107 design 68 kg, + clothing
-    if hidden == "aux_time_of_day":
-        return {"on_before_h": rng.uniform(6.0, 7.0), "on_after_h": rng.uniform(16.0, 17.0),
-                "power_w": rng.uniform(1000.0, 2400.0)}
-    return {}
+def cases(n_per_effect: int = 10, n_control: int = 30,
+          seed: int = truthsim.DEFAULT_SEED) -> list[truthsim.Case]:
+    """The FASTSim cases: the days of :func:`benchmarks.truth.cases.cases` (same seeds, so the
+    same route days) whose hidden effect FASTSim expresses, and the control days."""
+    return [dataclasses.replace(c, case_id=f"fastsim_{c.case_id}", chemistry=None)
+            for c in truthsim.cases(n_per_effect, n_control, seed)
+            if c.hidden is None or c.hidden in HIDDEN]
 
 
 def _strength(hidden: str | None, effect: dict, clean: pd.DataFrame) -> dict:
     """The truth in the library's parameters, where it has an equivalent."""
-    if hidden == "passenger_mass":
-        return {"passenger_mass.passenger_mass_kg": effect["passenger_mass_kg"]}
-    if hidden == "aux_time_of_day":
-        # the library's default table has the same dark-hours shape at 500 W
-        return {"aux_schedule.scale": effect["power_w"] / LIBRARY_SCHEDULE_W}
-    if hidden in ("cabin_heating", "cabin_cooling"):
-        # FASTSim's envelope conductance over the day, measured from its own history:
-        # UA = -sum(Q_from_ambient) / sum(T_cab - T_amb); it also carries the air exchange the
-        # library models separately, and FASTSim's cabin has no door or passenger terms
+    if hidden in HVAC_EFFECTS:
+        # FASTSim's conductance over the day, measured from its own history,
+        # G = -sum(Q_from_ambient) / sum(T_cab - T_amb), carries envelope and fresh air in the
+        # ratio they were scaled in; the library's UA is the envelope's share of it
         delta_k = clean["cabin_temp_degc"] - clean["ambient_degc"]
-        return {"cabin_hvac.ua_w_per_k": float(-clean["cabin_from_ambient_w"].sum()
-                                              / delta_k.sum())}
-    return {}
+        measured = float(-clean["cabin_from_ambient_w"].sum() / delta_k.sum())
+        share = effect["ua_w_per_k"] / (effect["conductance_scale"] * FASTSIM_CABIN_W_PER_K)
+        return {"cabin_hvac.ua_w_per_k": measured * share}
+    return truthsim._strength(hidden, effect, clean)
 
 
-def generate(case: dict) -> tuple[pd.DataFrame, dict]:
-    """One case: the degraded 1 Hz log and its truth record (same schema as ``cases.py``)."""
+def generate(case: truthsim.Case) -> tuple[pd.DataFrame, dict]:
+    """One case: the degraded 1 Hz log and its truth record (the schema of ``cases.py``)."""
     log, truth, _ = generate_with_clean(case)
     return log, truth
 
 
-def generate_with_clean(case: dict) -> tuple[pd.DataFrame, dict, pd.DataFrame]:
+def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.DataFrame]:
     """:func:`generate`, plus the clean trace (for checks and figures)."""
     require_fastsim()
-    hidden = case["hidden"]
-    rng = np.random.default_rng(case["seed"])
-    verdict, climate = HIDDEN[hidden] if hidden else (None, "mild")
-    plan = route_day(rng, case["hours"], case["start_clock_h"], case.get("route"),
-                     climate=climate)
-    base = draw_base(rng)
-    effect = draw_effect(rng, hidden)
-    clean = simulate(plan, base, hidden, effect)
+    hidden = case.hidden
+    plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
+    plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
+                     case.route, climate=case.climate)
+    base = draw_base(np.random.default_rng(base_ss))
+    phys_rng = np.random.default_rng(phys_ss)
+    # the day options and the passenger mass and lights of cases.py; FASTSim's own cabin
+    effect, day = truthsim._physical(hidden, phys_rng, plan, "LFP")
+    if hidden in HVAC_EFFECTS:
+        effect = draw_hvac(phys_rng, hidden)
+    clean = simulate(plan, base, hidden, effect, **day)
     # what the log reveals: altitude on grade days, passenger counts on passenger days
     shown = clean.drop(columns=[c for c, keep in (("altitude_m", hidden == "road_grade"),
                                                   ("passengers", hidden == "passenger_mass"))
                                 if not keep])
-    log = degrade(shown, rng, relative_time=case["relative_time"])
-    physical = {"kwh_per_km": consumption_kwh_per_km(clean),
-                "distance_km": float(clean["distance_m"].iloc[-1] / 1e3), **effect}
-    if hidden == "road_grade":
-        physical["climb_m"] = float(np.clip(np.diff(clean["altitude_m"]), 0, None).sum())
-    if hidden in ("cabin_heating", "cabin_cooling"):
-        physical["hvac_kwh"] = float(clean["hvac_elec_w"].sum() / 3.6e6)
+    log = degrade(shown, np.random.default_rng(log_ss), relative_time=case.relative_time)
+    km = float(clean["distance_m"].iloc[-1]) / 1e3
+    out_j = float(clean["energy_out_j"].sum())
+    capacity_j = base["capacity_kwh"] * 3.6e6
+    soc = clean["soc_frac"]
     truth = {
-        "case_id": case["case_id"], "source": SOURCE, "hidden": hidden,
-        "expected_verdict": verdict, "outside_mode": None,
+        **dataclasses.asdict(case),
+        "source": SOURCE,
+        "expected_verdict": truthsim.EFFECTS[hidden][0] if hidden else None,
+        "outside_mode": None,
+        "mode_shares": None,
         "strength": _strength(hidden, effect, clean),
-        "physical": physical, "base": base, "chemistry": None,
-        "route": plan.attrs["route"], "climate": climate,
-        "start_clock_h": case["start_clock_h"], "hours": case["hours"],
-        "relative_time": case["relative_time"], "seed": case["seed"],
+        "physical": {k: float(v) for k, v in effect.items()},
+        "base": {k: float(v) for k, v in base.items()},
+        "date": plan.attrs["date"],
+        "charger_kw": plan.attrs["charger_kw"],
+        "charger_terminals": plan.attrs["charger_terminals"],
+        **day,
+        "summary": {"km": round(km, 3),
+                    "kwh_per_km": round(out_j / 3.6e6 / km, 4),
+                    "hidden_kwh": round(float(clean["p_hidden_w"].sum()) / 3.6e6, 3),
+                    # what the charger put in = SoC gained + energy given out
+                    "charger_kwh": round((capacity_j * (soc.iloc[-1] - soc.iloc[0]) + out_j)
+                                         / 3.6e6, 3),
+                    "soc_min_pct": round(100.0 * float(soc.min()), 2),
+                    "soc_max_pct": round(100.0 * float(soc.max()), 2)},
         "fastsim_version": fastsim.__version__,
     }
     return log, truth, clean
+
+
+def write(case_list: list[truthsim.Case], out_dir: str | Path) -> list[dict]:
+    """Write each case's ``<case_id>.csv.gz`` and the truth records in ``truth_fastsim.json``;
+    prints each day's figures and FASTSim run time."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for case in case_list:
+        start = time.perf_counter()
+        log, truth = generate(case)
+        seconds = time.perf_counter() - start
+        truthsim._atomic_write(out / f"{case.case_id}.csv.gz", truthsim.log_bytes(log))
+        records.append(truth)
+        s = truth["summary"]
+        print(f"{case.case_id:<30} {truth['route']:<5} {case.hours:5.2f} h {s['km']:7.1f} km "
+              f"{s['kwh_per_km']:.3f} kWh/km  hidden {s['hidden_kwh']:6.2f} kWh  "
+              f"SoC {s['soc_min_pct']:.1f}-{s['soc_max_pct']:.1f} %  {seconds:5.2f} s")
+    truthsim._atomic_write(out / "truth_fastsim.json",
+                           (json.dumps(records, indent=1, sort_keys=True) + "\n").encode())
+    return records
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="folder for the logs and truth_fastsim.json")
+    parser.add_argument("--n-per-effect", type=int, default=10)
+    parser.add_argument("--n-control", type=int, default=30)
+    parser.add_argument("--seed", type=int, default=truthsim.DEFAULT_SEED)
+    args = parser.parse_args(argv)
+    write(cases(args.n_per_effect, args.n_control, args.seed), args.out)
+
+
+if __name__ == "__main__":
+    main()
