@@ -200,3 +200,27 @@ def test_case_list_covers_every_effect_and_keeps_clock_bound_logs_stamped():
     assert not any(c.relative_time for c in listed if c.hidden in truth_cases.CLOCK_BOUND)
     assert any(c.relative_time for c in listed)
     assert {c.chemistry for c in listed} == {"LFP", "NMC"}
+
+
+@pytest.mark.parametrize("hidden", sorted(truth_cases.EFFECTS))
+def test_each_hidden_effect_costs_energy_where_it_should(hidden):
+    case = truth_cases.cases(1, 0, effects=(hidden,))[0]
+    start = 16.0 if hidden == "aux_schedule" else case.start_clock_h  # into the dusk
+    case = dataclasses.replace(case, hours=2.0, start_clock_h=start)
+    log, truth = truth_cases.generate(case)
+    assert truth["summary"]["effect_kwh"] > 0.2
+    assert truth["expected_verdict"] == truth_cases.EFFECTS[hidden][0]
+    assert ("altitude_m" in log) == (hidden == "road_grade")
+    assert ("passengers" in log) == (hidden == "passenger_mass")
+    if truth["expected_verdict"] == "outside_library":
+        assert truth["strength"] == {}
+        assert truth["outside_mode"] in truth_cases.MODES
+        assert sum(truth["mode_shares"].values()) == pytest.approx(1.0, abs=1e-3)
+    else:
+        assert truth["outside_mode"] is None
+    if hidden == "battery_chiller":
+        charging = truth["mode_shares"]["CC charging"] + truth["mode_shares"]["CV charging"]
+        assert charging == pytest.approx(1.0)
+    if hidden == "regen_soc_limit":
+        assert truth["summary"]["soc_max_pct"] > truth["strength"][
+            "regen_soc_limit.derate_soc_pct"]

@@ -29,6 +29,7 @@ from benchmarks.truth.sim import HIDDEN, simulate
 from benchmarks.truth.vehicles import draw_base
 
 SOURCE = "truthsim"
+MIN_SOC_FRAC = 0.10
 DEFAULT_SEED = 20230117
 
 # hidden effect -> (library effect the diagnosis should name, climate of the day)
@@ -97,7 +98,9 @@ def cases(n_per_effect: int = 10, n_control: int = 30, seed: int = DEFAULT_SEED,
 def _physical(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame,
               chemistry: str) -> tuple[dict, dict]:
     """The hidden effect's truth values and the day options (start SoC, charger stop SoC)."""
-    day = {"soc0_frac": rng.uniform(0.6, 0.85), "charge_stop_frac": rng.uniform(0.85, 0.92)}
+    # below the top, where the cells' voltage limit would itself cut regeneration
+    stop = rng.uniform(0.85, 0.90) if chemistry == "LFP" else rng.uniform(0.80, 0.88)
+    day = {"soc0_frac": rng.uniform(0.6, stop), "charge_stop_frac": stop}
     ph: dict[str, float] = {}
     if hidden in ("cabin_heating", "cabin_cooling"):
         heating = hidden == "cabin_heating"
@@ -114,9 +117,9 @@ def _physical(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame,
             "kp_w_per_k": 3000.0, "ki_w_per_k_s": 5.0, "blower_w": rng.uniform(400.0, 800.0),
         }
     elif hidden == "regen_soc_limit":
-        top = 0.985 if chemistry == "LFP" else 0.96  # below the CV voltage of the cells
+        top = 0.985 if chemistry == "LFP" else 0.97
         day = {"soc0_frac": rng.uniform(top - 0.05, top), "charge_stop_frac": top}
-        ph = {"derate_soc_frac": rng.uniform(0.85, 0.92)}
+        ph = {"derate_soc_frac": rng.uniform(0.80, 0.90)}
     elif hidden == "cold_battery":
         # parked in a depot hall overnight: the pack starts above the ambient
         ph = {"start_offset_k": rng.uniform(0.0, 15.0),
@@ -180,6 +183,13 @@ def _strength(hidden: str | None, ph: dict, trace: pd.DataFrame) -> dict:
     return {}
 
 
+def _used_j(trace: pd.DataFrame) -> float:
+    """Energy taken by the drive, the loads and the battery's own losses over the day [J]."""
+    end = trace.iloc[-1]
+    return float(end["e_drive_dc_j"] + end["e_aux_j"] + end["e_hidden_j"]
+                 + end["e_battery_loss_j"])
+
+
 def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     """The degraded log and the truth record of one case.
 
@@ -189,16 +199,30 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     outside load's energy; ``mode_shares`` for every hidden load), ``strength`` (library
     ``"effect.param"`` -> truth value), ``physical`` (the truth's own values), ``base``,
     ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the day
-    options and a summary (km, kWh/km at the battery, hidden energy).
+    options and a summary (km, kWh/km at the battery, the hidden load's energy, and
+    ``effect_kwh``: what the effect adds to the energy used against the same day without it).
     """
     plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
-    plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
-                     case.route, climate=case.climate)
     base = draw_base(np.random.default_rng(base_ss), case.chemistry)
-    phys_rng = np.random.default_rng(phys_ss)
-    base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
-    ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
-    trace = simulate(plan, base, case.hidden, ph, **day)
+    # An operator plans charging so that the bus finishes its day: when the drawn chargers
+    # leave the pack below MIN_SOC_FRAC, the same day is run with 450 kW at both terminals.
+    full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
+    # regen-limit days are topped up at every layover, so the bus runs at high SoC
+    for chargers in ((full,) if case.hidden == "regen_soc_limit" else ({}, full)):
+        plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
+                         case.route, climate=case.climate, **chargers)
+        phys_rng = np.random.default_rng(phys_ss)
+        base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
+        ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
+        trace = simulate(plan, base, case.hidden, ph, **day)
+        if trace["soc_frac"].min() >= MIN_SOC_FRAC:
+            break
+    else:
+        raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
+                           f"(SoC {100 * trace['soc_frac'].min():.1f} %)")
+    # the hidden effect's size: the energy the loads and the battery's losses take, with the
+    # effect against the same day without it
+    without = trace if case.hidden is None else simulate(plan, base, None, {}, **day)
     logged = ["time_s", "clock_h", "speed_mps", "soc_frac", "ambient_degc", "charging",
               "charger_kw", "door_open"]
     if case.hidden == "road_grade":
@@ -235,6 +259,7 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
         "summary": {"km": round(km, 3),
                     "kwh_per_km": round(net_kwh / km, 4),
                     "hidden_kwh": round(hidden_j / 3.6e6, 3),
+                    "effect_kwh": round((_used_j(trace) - _used_j(without)) / 3.6e6, 3),
                     "charger_kwh": round(float(trace["e_charger_j"].iloc[-1]) / 3.6e6, 3),
                     "soc_min_pct": round(100.0 * float(trace["soc_frac"].min()), 2),
                     "soc_max_pct": round(100.0 * float(trace["soc_frac"].max()), 2)},
@@ -292,7 +317,7 @@ def main(argv: list[str] | None = None) -> None:
     for r in records:
         s = r["summary"]
         print(f"{r['case_id']:<20} {r['chemistry']} {r['route']:<5} {s['km']:7.1f} km "
-              f"{s['kwh_per_km']:.3f} kWh/km  hidden {s['hidden_kwh']:6.2f} kWh  "
+              f"{s['kwh_per_km']:.3f} kWh/km  effect {s['effect_kwh']:6.2f} kWh  "
               f"SoC {s['soc_min_pct']:.1f}-{s['soc_max_pct']:.1f} %")
 
 

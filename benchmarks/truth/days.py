@@ -55,7 +55,7 @@ PLAN_COLUMNS = ("time_s", "clock_h", "speed_target_mps", "grade_frac", "altitude
 # horizontal at that time of year.
 _SEASONS = {
     "cold": {"months": (12, 1, 2), "sun_h": (7.9, 16.6), "peak_w_per_m2": 300.0,
-             "mean_degc": (-12.0, 2.0), "swing_k": (2.0, 5.0)},
+             "mean_degc": (-8.0, 3.0), "swing_k": (2.0, 5.0)},
     "mild": {"months": (4, 5, 9, 10), "sun_h": (6.6, 19.3), "peak_w_per_m2": 650.0,
              "mean_degc": (9.0, 18.0), "swing_k": (3.0, 6.0)},
     "hot": {"months": (7, 8), "sun_h": (5.5, 20.8), "peak_w_per_m2": 880.0,
@@ -190,7 +190,8 @@ def solar_profile(rng: np.random.Generator, clock_h: np.ndarray, climate: str) -
 
 def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
               route: str | None = None, *, climate: str = "mild",
-              charger_kw: float | None = None) -> pd.DataFrame:
+              charger_kw: float | None = None,
+              charger_terminals: tuple[int, ...] | None = None) -> pd.DataFrame:
     """The driving plan of one service day, at 1 Hz.
 
     Parameters
@@ -201,6 +202,8 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
     route : ``"rt7"``, ``"rt44"`` or ``"rt45"``; drawn when None.
     climate : ``"cold"`` (winter), ``"mild"`` (spring/autumn) or ``"hot"`` (summer).
     charger_kw : rated power of the terminal chargers [kW]; drawn from 150/300/450 when None.
+    charger_terminals : terminals with a charger, ``(0,)`` (where leg 0 starts), ``(1,)`` or
+        ``(0, 1)``; drawn when None. Giving either changes nothing else in the day.
 
     Returns
     -------
@@ -220,8 +223,10 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
     season = _SEASONS[climate]
     month = int(rng.choice(season["months"]))
     date = pd.Timestamp(year=2025, month=month, day=int(rng.integers(1, 29)))
-    charger_kw = float(charger_kw if charger_kw is not None else rng.choice([150.0, 300.0, 450.0]))
-    terminals = (0, 1) if rng.random() < 0.4 else (0,)  # terminal 0: where leg 0 starts
+    drawn_kw = float(rng.choice([150.0, 300.0, 450.0]))
+    drawn_terminals = (0, 1) if rng.random() < 0.4 else (0,)
+    charger_kw = float(charger_kw) if charger_kw is not None else drawn_kw
+    terminals = tuple(charger_terminals) if charger_terminals is not None else drawn_terminals
     base_congestion = rng.uniform(0.72, 0.95)
     demand = rng.uniform(0.6, 1.4)
     accel = rng.uniform(0.8, 1.3)

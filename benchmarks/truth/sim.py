@@ -243,8 +243,10 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
         i_cv = max((v_max - ocv + v1) / r0, 0.0)
         i_accept = min(i_charge_max, i_cv)
         if effect == "regen_soc_limit":
+            # the BMS's regen current limit falls from the motor's full regen current at
+            # SoC_d to zero at 100 %
             derate = (1.0 - soc) / (1.0 - ph["derate_soc_frac"])
-            i_regen = i_accept * min(1.0, max(derate, 0.0))
+            i_regen = min(i_accept, b["regen_power_w"] / ocv * min(1.0, max(derate, 0.0)))
         else:
             i_regen = i_accept
         if soc >= 1.0:

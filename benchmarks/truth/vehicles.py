@@ -27,7 +27,8 @@ deceleration (the range of e-bus "retarder" regeneration on pedal release, 0.5-1
 in UITP/ZeEUS operator reports); the pneumatic friction brakes add the rest.
 
 Battery packs are built from the cell OCV tables in ``sim.py``: 250 kWh LFP (opportunity
-charging) or 200 kWh NMC, about 650 V. Pack resistance: ohmic ``R0`` plus one RC pair
+charging) or 200 kWh NMC, about 650 V, charged up to the cells' data-sheet charge voltage
+(3.65 V LFP, 4.20 V NMC) at 2 C (LFP) or 1.5 C (NMC). Pack resistance: ohmic ``R0`` plus one RC pair
 (``R1``, ``tau1``), 10-s DC resistance ``R0 + R1`` about 0.1 ohm (LFP) and 0.11 ohm (NMC).
 """
 
@@ -59,10 +60,10 @@ NOMINAL_12M = {
 PACKS = {
     # series cells, capacity [Ah], R0 [ohm], R1 [ohm], tau1 [s], max charge C-rate, cell V max
     "LFP": {"cells_series": 200, "capacity_ah": 385.0, "r0_ohm": 0.060, "r1_ohm": 0.040,
-            "tau1_s": 40.0, "max_charge_c": 2.0, "cell_v_max": 3.55,
+            "tau1_s": 40.0, "max_charge_c": 2.0, "cell_v_max": 3.65,
             "coulombic_efficiency": 0.998},
     "NMC": {"cells_series": 176, "capacity_ah": 310.0, "r0_ohm": 0.065, "r1_ohm": 0.045,
-            "tau1_s": 30.0, "max_charge_c": 1.5, "cell_v_max": 4.15,
+            "tau1_s": 30.0, "max_charge_c": 1.5, "cell_v_max": 4.20,
             "coulombic_efficiency": 0.997},
 }
 
