@@ -300,9 +300,6 @@ def rebuild_soc(energy_out_j: np.ndarray, charger_w: np.ndarray, capacity_kwh: f
         taper = min(max((stop_soc_frac - soc[k - 1]) / TAPER_FRAC, 0.0), 1.0)
         soc[k] = (soc[k - 1] - energy_out_j[k] / e_cap_j
                   + CHARGE_EFFICIENCY * charger_w[k] * taper * dt_s / e_cap_j)
-    if soc.min() < 0.02:
-        raise RuntimeError(f"the bus's pack ran empty (SoC {soc.min():.3f}); the day is "
-                           "too long for its charging")
     return soc
 
 
@@ -445,15 +442,26 @@ def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.Dat
     require_fastsim()
     hidden = case.hidden
     plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
-    plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
-                     case.route, climate=case.climate)
     base = draw_base(np.random.default_rng(base_ss))
-    phys_rng = np.random.default_rng(phys_ss)
-    # the day options and the passenger mass and lights of cases.py; FASTSim's own cabin
-    effect, day = truthsim._physical(hidden, phys_rng, plan, "LFP")
-    if hidden in HVAC_EFFECTS:
-        effect = draw_hvac(phys_rng, hidden)
-    clean = simulate(plan, base, hidden, effect, **day)
+    # as in cases.py: when the drawn chargers leave the pack below MIN_SOC_FRAC, the operator
+    # runs the same day with 450 kW at both terminals
+    full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
+    for chargers in ({}, full):
+        plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
+                         case.route, climate=case.climate, **chargers)
+        phys_rng = np.random.default_rng(phys_ss)
+        # the day options and the passenger mass and lights of cases.py; FASTSim's own cabin
+        effect, day = truthsim._physical(hidden, phys_rng, plan, "LFP")
+        if hidden in HVAC_EFFECTS:
+            effect = draw_hvac(phys_rng, hidden)
+        clean = simulate(plan, base, hidden, effect, **day)
+        if clean["soc_frac"].min() >= truthsim.MIN_SOC_FRAC:
+            break
+    else:
+        raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
+                           f"(SoC {100 * clean['soc_frac'].min():.1f} %)")
+    # the effect's size: the energy it adds against the same day without it
+    without = clean if hidden is None else simulate(plan, base, None, {}, **day)
     # what the log reveals: altitude on grade days, passenger counts on passenger days
     shown = clean.drop(columns=[c for c, keep in (("altitude_m", hidden == "road_grade"),
                                                   ("passengers", hidden == "passenger_mass"))
@@ -479,6 +487,8 @@ def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.Dat
         "summary": {"km": round(km, 3),
                     "kwh_per_km": round(out_j / 3.6e6 / km, 4),
                     "hidden_kwh": round(float(clean["p_hidden_w"].sum()) / 3.6e6, 3),
+                    "effect_kwh": round((out_j - float(without["energy_out_j"].sum())) / 3.6e6,
+                                        3),
                     # what the charger put in = SoC gained + energy given out
                     "charger_kwh": round((capacity_j * (soc.iloc[-1] - soc.iloc[0]) + out_j)
                                          / 3.6e6, 3),
@@ -503,7 +513,7 @@ def write(case_list: list[truthsim.Case], out_dir: str | Path) -> list[dict]:
         records.append(truth)
         s = truth["summary"]
         print(f"{case.case_id:<30} {truth['route']:<5} {case.hours:5.2f} h {s['km']:7.1f} km "
-              f"{s['kwh_per_km']:.3f} kWh/km  hidden {s['hidden_kwh']:6.2f} kWh  "
+              f"{s['kwh_per_km']:.3f} kWh/km  effect {s['effect_kwh']:6.2f} kWh  "
               f"SoC {s['soc_min_pct']:.1f}-{s['soc_max_pct']:.1f} %  {seconds:5.2f} s")
     truthsim._atomic_write(out / "truth_fastsim.json",
                            (json.dumps(records, indent=1, sort_keys=True) + "\n").encode())
