@@ -62,7 +62,6 @@ SOURCE = "fastsim"
 BASE_VEHICLE = "2022_Renault_Zoe_ZE50_R135.yaml"
 THERMAL_DONOR = "2016 Nissan Leaf 30 kWh thrml.yaml"
 KELVIN = 273.15
-GRAVITY_MPS2 = 9.81
 
 # Nominal 12 m bus. Curb mass, c_d, A and C_rr: ADVISOR vehicle files VEH_RTS06 (glider
 # 12 156 kg, A = 7.90 m^2, c_d 0.79) and VEH_ORIONVI (12 636 kg, 7.24 m^2), C_rr 0.008
