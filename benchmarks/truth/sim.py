@@ -114,7 +114,8 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
     p_charger_w``, cumulative energies ``e_*_j``, ``cabin_temp_degc, pack_temp_degc,
     air_pressure_bar``, ``cv_phase`` (1 while the cells' voltage limit sets the charge
     current), the inputs as the bus met them (``grade_frac, altitude_m,
-    passengers, door_open, charging, charger_kw, ambient_degc``) and ``distance_m``.
+    passengers, door_open, ambient_degc``), ``plugged`` (under a charger), ``charging`` and
+    ``charger_kw`` (while a session runs: it ends at the stop SoC) and ``distance_m``.
     """
     if effect is not None and effect not in HIDDEN:
         raise ValueError(f"unknown hidden effect {effect!r}; known: {sorted(HIDDEN)}")
@@ -353,8 +354,10 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
     trace["grade_frac"] = grade[::out_every]
     trace["passengers"] = pax[::out_every].astype(int)
     trace["door_open"] = door[::out_every]
-    trace["charging"] = plugged[::out_every]
-    trace["charger_kw"] = charger_w[::out_every] / 1000.0
+    # a session ends when the BMS reaches the stop SoC, though the bus stays under the mast
+    trace["plugged"] = plugged[::out_every]
+    trace["charging"] = ((trace["plugged"] == 1) & (trace["p_charger_w"] > 0.0)).astype(int)
+    trace["charger_kw"] = np.where(trace["charging"] == 1, charger_w[::out_every] / 1000.0, 0.0)
     trace["ambient_degc"] = ambient[::out_every]
     trace["leg"] = plan["leg"].to_numpy()[rows]
     trace.attrs.update(plan.attrs)
