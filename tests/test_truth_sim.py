@@ -104,6 +104,11 @@ def test_charging_stops_at_the_stop_soc():
                      soc0_frac=0.85, charge_stop_frac=0.9)
     assert 0.9 <= trace["soc_frac"].max() < 0.902
     assert trace["soc_frac"].iloc[-1] < trace["soc_frac"].max()  # then the aux load drains
+    # the session, and with it the logged charging flag, ends; the bus stays plugged
+    after = trace["soc_frac"].to_numpy().argmax() + 1
+    assert (trace["plugged"] == 1).all()
+    assert (trace["charging"].iloc[:after] == 1).all() and (trace["charging"].iloc[after:] == 0).all()
+    assert (trace["charger_kw"].iloc[after:] == 0.0).all()
 
 
 @pytest.fixture(scope="module")

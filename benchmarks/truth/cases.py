@@ -152,7 +152,7 @@ def modes(trace: pd.DataFrame) -> np.ndarray:
     mode[trace["speed_mps"] <= 0.1] = 3
     plugged = (trace["charging"] == 1) & (trace["p_charger_w"] > 0)
     mode[plugged] = 4
-    mode[plugged & (trace["p_charger_w"] < 0.98e3 * trace["charger_kw"])] = 5
+    mode[plugged & (trace["cv_phase"] == 1)] = 5
     return mode
 
 
@@ -198,7 +198,8 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     library does not have), ``outside_mode`` (the operating mode that takes most of an
     outside load's energy; ``mode_shares`` for every hidden load), ``strength`` (library
     ``"effect.param"`` -> truth value), ``physical`` (the truth's own values), ``base``,
-    ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the day
+    ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the
+    logged ``columns``, the day
     options and a summary (km, kWh/km at the battery, the hidden load's energy, and
     ``effect_kwh``: what the effect adds to the energy used against the same day without it).
     """
@@ -245,6 +246,7 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     truth = {
         **asdict(case),
         "source": SOURCE,
+        "columns": list(log.columns),
         "expected_verdict": expected,
         "outside_mode": (max(shares, key=shares.get)
                          if expected == "outside_library" and shares else None),

@@ -112,8 +112,10 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
     DataFrame: ``time_s, clock_h, speed_mps, soc_frac, battery_current_a, battery_voltage_v,
     ocv_v``, powers ``p_battery_w, p_wheel_w, p_drive_dc_w, p_aux_w, p_hidden_w,
     p_charger_w``, cumulative energies ``e_*_j``, ``cabin_temp_degc, pack_temp_degc,
-    air_pressure_bar``, the inputs as the bus met them (``grade_frac, altitude_m,
-    passengers, door_open, charging, charger_kw, ambient_degc``) and ``distance_m``.
+    air_pressure_bar``, ``cv_phase`` (1 while the cells' voltage limit sets the charge
+    current), the inputs as the bus met them (``grade_frac, altitude_m,
+    passengers, door_open, ambient_degc``), ``plugged`` (under a charger), ``charging`` and
+    ``charger_kw`` (while a session runs: it ends at the stop SoC) and ``distance_m``.
     """
     if effect is not None and effect not in HIDDEN:
         raise ValueError(f"unknown hidden effect {effect!r}; known: {sorted(HIDDEN)}")
@@ -174,7 +176,7 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
              "p_charger_w", "e_battery_j", "e_ocv_j", "e_battery_loss_j", "e_wheel_j",
              "e_road_j", "e_grade_j", "e_friction_j", "e_kinetic_j", "e_drive_dc_j",
              "e_aux_j", "e_hidden_j", "e_charger_j", "cabin_temp_degc", "pack_temp_degc",
-             "air_pressure_bar", "altitude_m", "distance_m", "accel_mps2")
+             "air_pressure_bar", "altitude_m", "distance_m", "accel_mps2", "cv_phase")
     rec = {k: np.empty(n_out) for k in names}
     e = dict.fromkeys(("battery", "ocv", "battery_loss", "wheel", "road", "grade", "friction",
                        "drive_dc", "aux", "hidden", "charger"), 0.0)
@@ -292,14 +294,15 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
 
         # -- charger and battery ---------------------------------------------------------
         p_ch = 0.0
+        cv_phase = 0.0
         if plugged[k] and not charging_done:
             if soc >= charge_stop_frac:
                 charging_done = True
             else:
-                i_req = i_accept
-                p_ch = min(charger_w[k], p_aux + p_hidden + p_drive
-                           + i_req * (ocv - v1 + r0 * i_req))
-                p_ch = max(p_ch, 0.0)
+                p_request = p_aux + p_hidden + p_drive + i_accept * (ocv - v1 + r0 * i_accept)
+                p_ch = max(min(charger_w[k], p_request), 0.0)
+                # the cells' voltage, not the charger or the C-rate, sets the current
+                cv_phase = float(p_request < charger_w[k] and i_cv < i_charge_max)
         if not plugged[k]:
             charging_done = False
         p_batt = p_drive + p_aux + p_hidden - p_ch
@@ -344,14 +347,17 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
             rec["altitude_m"][j] = altitude
             rec["distance_m"][j] = dist
             rec["accel_mps2"][j] = a
+            rec["cv_phase"][j] = cv_phase
         v = v_new
     rows = held[::out_every]
     trace = pd.DataFrame({"time_s": t[::out_every], "clock_h": clock[::out_every], **rec})
     trace["grade_frac"] = grade[::out_every]
     trace["passengers"] = pax[::out_every].astype(int)
     trace["door_open"] = door[::out_every]
-    trace["charging"] = plugged[::out_every]
-    trace["charger_kw"] = charger_w[::out_every] / 1000.0
+    # a session ends when the BMS reaches the stop SoC, though the bus stays under the mast
+    trace["plugged"] = plugged[::out_every]
+    trace["charging"] = ((trace["plugged"] == 1) & (trace["p_charger_w"] > 0.0)).astype(int)
+    trace["charger_kw"] = np.where(trace["charging"] == 1, charger_w[::out_every] / 1000.0, 0.0)
     trace["ambient_degc"] = ambient[::out_every]
     trace["leg"] = plan["leg"].to_numpy()[rows]
     trace.attrs.update(plan.attrs)
