@@ -118,16 +118,22 @@ def test_time_of_day_load_switches_at_a_standstill():
     assert aux[0] == 1500.0 and aux[-1] == 0.0
 
 
-def test_rebuild_soc_charges_at_rated_power_then_tapers():
+def test_rebuild_soc_charges_at_rated_power_then_tapers_and_ends():
     n = 3600
     charger_w = np.full(n, 300e3)
-    soc = fs.rebuild_soc(np.zeros(n), charger_w, 200.0, 0.5, 0.9)
-    # constant power while below the taper: eta P dt / E per second
-    assert soc[10] - soc[9] == pytest.approx(fs.CHARGE_EFFICIENCY * 300e3 / 720e6)
+    charger_w[:5] = 0.0  # plugged in at 5 s
+    soc, session = fs.rebuild_soc(np.full(n, 5e3), charger_w, 200.0, 0.5, 0.9)
+    assert not session[:5].any() and session[5]
+    # constant power while below the taper: eta P dt / E per second, less the 5 kW drain
+    assert soc[10] - soc[9] == pytest.approx((fs.CHARGE_EFFICIENCY * 300e3 - 5e3) / 720e6)
     assert soc.max() <= 0.9
-    assert soc[-1] > 0.9 - fs.TAPER_FRAC
-    drained = fs.rebuild_soc(np.full(n, 7.2e4), np.zeros(n), 200.0, 0.9, 0.9)
-    assert drained[-1] == pytest.approx(0.9 - (n - 1) * 7.2e4 / 720e6)
+    # the session ends near the stop SoC and stays ended while the bus stands there
+    end = int(np.flatnonzero(session)[-1]) + 1
+    assert end < n - 1 and not session[end:].any()
+    assert soc[end - 1] > 0.9 - fs.TAPER_FRAC * fs.END_OF_CHARGE_FRAC
+    assert np.all(np.diff(soc[end:]) < 0.0)
+    drained, none = fs.rebuild_soc(np.full(n, 7.2e4), np.zeros(n), 200.0, 0.9, 0.9)
+    assert drained[-1] == pytest.approx(0.9 - (n - 1) * 7.2e4 / 720e6) and not none.any()
 
 
 def test_cases_are_the_truthsim_days_fastsim_can_express():

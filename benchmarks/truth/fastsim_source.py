@@ -25,7 +25,8 @@ How a day is made
    a large energy meter: its energy out per step is taken from its SoC history, and the logged
    SoC of the bus's real pack (capacity ``capacity_kwh``) is rebuilt from it, with the plan's
    opportunity charging added at layovers by this module (:func:`rebuild_soc`): the rated
-   power times a charge efficiency, tapering linearly to zero at the day's stop SoC.
+   power times a charge efficiency, tapering linearly towards the day's stop SoC, where the
+   session ends.
    A whole-day run starts with a 10 min pre-trip standstill (auxiliaries and HVAC on, dropped
    from the log): a run that starts at ``max_soc`` would otherwise refuse regeneration above
    it on a downhill start. A run whose FASTSim pack returns to full raises an error.
@@ -87,6 +88,7 @@ FASTSIM_PACK_KWH = 5000.0  # FASTSim's pack: an energy meter that never runs emp
 PRETRIP_S = 600
 CHARGE_EFFICIENCY = 0.93  # charger to cells (assumed)
 TAPER_FRAC = 0.05  # the charge power tapers linearly over this SoC below the stop SoC
+END_OF_CHARGE_FRAC = 0.05  # a session ends below this fraction of the rated power (~C/20)
 BUS_CABIN_M = (12.0, 2.55, 2.3)  # length, width, interior height (EU maximum width 2.55 m)
 CAR_CABIN_HEIGHT_M = 1.2  # interior height assumed for the donor car's cabin volume
 HVAC_THERMAL_MAX_W = 30000.0  # assumed rating of a 12 m bus roof unit
@@ -287,22 +289,31 @@ def run_fastsim(veh: dict, speed_mps, grade_frac, ambient_degc, solar_w, altitud
 
 
 def rebuild_soc(energy_out_j: np.ndarray, charger_w: np.ndarray, capacity_kwh: float,
-                start_soc_frac: float, stop_soc_frac: float, dt_s: float = 1.0) -> np.ndarray:
-    """SoC of the bus's pack [1] from the energy FASTSim's pack gave out per step [J] and the
-    charger's rated power per step [W] (0 off the charger).
+                start_soc_frac: float, stop_soc_frac: float,
+                dt_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """SoC of the bus's pack [1] and the charging-session flag, from the energy FASTSim's pack
+    gave out per step [J] and the rated power of the charger the bus stands under [W] (0 off
+    a charger).
 
     ``SoC_k = SoC_{k-1} - E_out,k / E_cap + eta_c P_c f(SoC_{k-1}) dt / E_cap`` with
     ``f = clip((SoC_stop - SoC) / TAPER, 0, 1)``: full power up to ``TAPER`` below the
-    charger's stop SoC, then a linear taper to zero at it (the constant-voltage phase).
+    session's stop SoC, then a linear taper (the constant-voltage phase). The session ends
+    when ``f`` falls below ``END_OF_CHARGE_FRAC`` (the end-of-charge current) and stays ended
+    until the bus leaves the charger.
     """
     e_cap_j = capacity_kwh * 3.6e6
     soc = np.empty(len(energy_out_j))
+    session = np.zeros(len(energy_out_j), dtype=np.int8)
     soc[0] = start_soc_frac
+    ended = False
     for k in range(1, len(soc)):
         taper = min(max((stop_soc_frac - soc[k - 1]) / TAPER_FRAC, 0.0), 1.0)
+        ended = charger_w[k] > 0.0 and (ended or taper < END_OF_CHARGE_FRAC)
+        on = charger_w[k] > 0.0 and not ended
+        session[k] = on
         soc[k] = (soc[k - 1] - energy_out_j[k] / e_cap_j
-                  + CHARGE_EFFICIENCY * charger_w[k] * taper * dt_s / e_cap_j)
-    return soc
+                  + (CHARGE_EFFICIENCY * charger_w[k] * taper * dt_s / e_cap_j if on else 0.0))
+    return soc, session
 
 
 def _pieces(speed_mps: np.ndarray, *piecewise: np.ndarray) -> list[tuple[int, int]]:
@@ -338,8 +349,9 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
              soc0_frac: float = 0.8, charge_stop_frac: float = 0.9) -> pd.DataFrame:
     """Clean truth trace of one day (1 Hz): plan + base parameters + hidden effect.
 
-    Returns ``time_s, clock_h, speed_mps, soc_frac, ambient_degc, charging, charger_kw,
-    door_open, altitude_m, passengers`` plus ``energy_out_j`` (FASTSim's pack energy out per
+    Returns ``time_s, clock_h, speed_mps, soc_frac, ambient_degc, plugged`` (under a
+    charger), ``charging, charger_kw`` (while a session runs), ``door_open, altitude_m,
+    passengers`` plus ``energy_out_j`` (FASTSim's pack energy out per
     step), ``distance_m``, ``aux_w``, ``p_hidden_w`` (a hidden load), ``mass_kg`` and, on HVAC days,
     ``cabin_temp_degc``, ``hvac_elec_w``, ``hvac_thermal_w``, ``cabin_from_ambient_w``.
     """
@@ -379,15 +391,19 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
         [r["distance_m"] + off for r, off in
          zip(runs, np.cumsum([0.0] + [r["distance_m"][-1] for r in runs[:-1]]), strict=True)])
     charger_w = plan["charger_kw"].to_numpy(float) * 1e3 * plan["charging"].to_numpy(float)
+    soc, session = rebuild_soc(hist["energy_out_j"], charger_w, base["capacity_kwh"],
+                               soc0_frac, charge_stop_frac)
     clean = pd.DataFrame({
         "time_s": plan["time_s"].to_numpy(float),
         "clock_h": plan["clock_h"].to_numpy(float),
         "speed_mps": hist["speed_mps"],
-        "soc_frac": rebuild_soc(hist["energy_out_j"], charger_w, base["capacity_kwh"],
-                                soc0_frac, charge_stop_frac),
+        "soc_frac": soc,
         "ambient_degc": ambient,
-        "charging": plan["charging"].to_numpy(int),
-        "charger_kw": plan["charger_kw"].to_numpy(float),
+        # as in the independent simulator: the logged session ends at the stop SoC, though
+        # the bus may stay under the charger
+        "plugged": plan["charging"].to_numpy(int),
+        "charging": session.astype(int),
+        "charger_kw": np.where(session == 1, charger_w / 1e3, 0.0),
         "door_open": plan["door_open"].to_numpy(int),
         "altitude_m": altitude,
         "passengers": passengers,
@@ -476,6 +492,7 @@ def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.Dat
     truth = {
         **dataclasses.asdict(case),
         "source": SOURCE,
+        "columns": list(log.columns),
         "expected_verdict": truthsim.EFFECTS[hidden][0] if hidden else None,
         "outside_mode": None,
         "mode_shares": None,
