@@ -134,8 +134,9 @@ def _physical(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame,
               "lights_on_h": set_ - rng.uniform(0.0, 0.5),
               "lights_off_h": rise + rng.uniform(0.0, 0.5)}
     elif hidden == "air_compressor":
-        # electric screw/piston compressors of e-buses: 4-8 kW; governor 10.0-12.5 bar
-        ph = {"compressor_w": rng.uniform(4e3, 8e3), "fill_bar_per_s": rng.uniform(0.02, 0.035),
+        # electric compressors of e-buses: 4-8 kW, delivering 300-700 l/min of free air into
+        # ~150 l of reservoirs (0.035-0.07 bar/s); governor 10.0-12.5 bar
+        ph = {"compressor_w": rng.uniform(4e3, 8e3), "fill_bar_per_s": rng.uniform(0.035, 0.07),
               "brake_bar": rng.uniform(0.10, 0.20), "door_bar": rng.uniform(0.15, 0.30),
               "leak_bar_per_s": rng.uniform(2e-4, 5e-4), "cut_in_bar": 10.0,
               "cut_out_bar": 12.5}
