@@ -197,7 +197,8 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     The truth record holds ``case_id, source, hidden, expected_verdict`` (the library effect
     the diagnosis should name; None for control days, ``"outside_library"`` for loads the
     library does not have), ``outside_mode`` (the operating mode that takes most of an
-    outside load's energy; ``mode_shares`` for every hidden load), ``strength`` (library
+    outside load's energy; ``outside_modes`` every mode with at least 25 % of it;
+    ``mode_shares`` for every hidden load), ``strength`` (library
     ``"effect.param"`` -> truth value), ``physical`` (the truth's own values), ``base``,
     ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the
     logged ``columns``, the day
@@ -252,6 +253,10 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
         "outside_mode": (max(shares, key=shares.get)
                          if expected == "outside_library" and shares else None),
         "mode_shares": shares,
+        # a load spread over modes (the compressor: standing and pulling away) has more than
+        # one right clue: every mode with at least a quarter of its energy
+        "outside_modes": (sorted(m for m, v in shares.items() if v >= 0.25)
+                          if expected == "outside_library" and shares else None),
         "strength": _strength(case.hidden, ph, trace),
         "physical": ph,
         "base": {k: (v if isinstance(v, str) else float(v)) for k, v in base.items()},
