@@ -220,6 +220,7 @@ def test_each_hidden_effect_costs_energy_where_it_should(hidden):
     if truth["expected_verdict"] == "outside_library":
         assert truth["strength"] == {}
         assert truth["outside_mode"] in truth_cases.MODES
+        assert truth["outside_mode"] in truth["outside_modes"]
         assert sum(truth["mode_shares"].values()) == pytest.approx(1.0, abs=1e-3)
     else:
         assert truth["outside_mode"] is None

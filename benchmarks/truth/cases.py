@@ -134,8 +134,9 @@ def _physical(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame,
               "lights_on_h": set_ - rng.uniform(0.0, 0.5),
               "lights_off_h": rise + rng.uniform(0.0, 0.5)}
     elif hidden == "air_compressor":
-        # electric screw/piston compressors of e-buses: 4-8 kW; governor 10.0-12.5 bar
-        ph = {"compressor_w": rng.uniform(4e3, 8e3), "fill_bar_per_s": rng.uniform(0.02, 0.035),
+        # electric compressors of e-buses: 4-8 kW, delivering 300-700 l/min of free air into
+        # ~150 l of reservoirs (0.035-0.07 bar/s); governor 10.0-12.5 bar
+        ph = {"compressor_w": rng.uniform(4e3, 8e3), "fill_bar_per_s": rng.uniform(0.035, 0.07),
               "brake_bar": rng.uniform(0.10, 0.20), "door_bar": rng.uniform(0.15, 0.30),
               "leak_bar_per_s": rng.uniform(2e-4, 5e-4), "cut_in_bar": 10.0,
               "cut_out_bar": 12.5}
@@ -196,7 +197,8 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
     The truth record holds ``case_id, source, hidden, expected_verdict`` (the library effect
     the diagnosis should name; None for control days, ``"outside_library"`` for loads the
     library does not have), ``outside_mode`` (the operating mode that takes most of an
-    outside load's energy; ``mode_shares`` for every hidden load), ``strength`` (library
+    outside load's energy; ``outside_modes`` every mode with at least 25 % of it;
+    ``mode_shares`` for every hidden load), ``strength`` (library
     ``"effect.param"`` -> truth value), ``physical`` (the truth's own values), ``base``,
     ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the
     logged ``columns``, the day
@@ -251,6 +253,10 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
         "outside_mode": (max(shares, key=shares.get)
                          if expected == "outside_library" and shares else None),
         "mode_shares": shares,
+        # a load spread over modes (the compressor: standing and pulling away) has more than
+        # one right clue: every mode with at least a quarter of its energy
+        "outside_modes": (sorted(m for m, v in shares.items() if v >= 0.25)
+                          if expected == "outside_library" and shares else None),
         "strength": _strength(case.hidden, ph, trace),
         "physical": ph,
         "base": {k: (v if isinstance(v, str) else float(v)) for k, v in base.items()},

@@ -7,7 +7,7 @@ stops (doors open while passengers board and alight), at red signals and in traf
 The speed the driver aims for is built over distance, then mapped to time:
 
 1. a ceiling ``v_max(s) = f_traffic * f_segment * v_limit(s)``, the posted limit scaled by the
-   day's congestion and a per-segment draw;
+   day's congestion and a draw (0.7-1.05) for every 150 m (traffic, turns, parked cars);
 2. a forward pass ``v[i+1] = min(v_max, sqrt(v[i]^2 + 2 a(v) ds))`` with a comfort acceleration
    that falls with speed, ``a(v) = a_0 max(0.35, 1 - v / 22 m/s)``, and a backward pass
    ``v[i] = min(v[i], sqrt(v[i+1]^2 + 2 d ds))`` with a comfort deceleration ``d``, both to
