@@ -75,12 +75,34 @@ def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, 
     return profiles
 
 
+def _inputs(*groups, effects=()) -> list[Path]:
+    """The files a command reads: the paths given, and the file of each ``file.py:Name``."""
+    files = [Path(item.split(":", 1)[0]) for item in _split(list(effects or []))
+             if ".py" in item.split(":", 1)[0]]
+    return [Path(p) for group in groups for p in group or [] if p is not None] + files
+
+
+def _config_file(config: str | None) -> Path | None:
+    """The calibration config file that ``--config`` names (None for the defaults)."""
+    from ebus_env.config import find_config
+
+    return None if config is None else find_config(config, kind="calibration")
+
+
+def _write(path: Path, writer) -> None:
+    """Call ``writer(tmp)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    from ebus_env.outputs import atomic
+
+    with atomic(path) as tmp:
+        writer(tmp)
+
+
 def _run(fn):
     """Run a command body, printing user errors without a traceback."""
     try:
         return fn()
     except EbusError as exc:
-        _console().print(f"[bold red]error:[/] {exc}", highlight=False)
+        _console().print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
 
 
@@ -138,6 +160,7 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
               plot, json_path):
     from ebus_env.config import load_bus
     from ebus_env.errors import ConfigError
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES, check_output
     from ebus_env.report import summary_tables, write_json
     from ebus_env.simulate import run_profiles
 
@@ -148,6 +171,12 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
         else:
             raise ConfigError("Give either --cycle or --measured, not both.")
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    cycle_file = Path(cycle) if cycle is not None and Path(cycle).is_file() else None
+    inputs = _inputs([measured, bus.path, cycle_file], overlay, effects=with_)
+    for path, option, suffixes in ((out, "--out", TABLE_SUFFIXES), (plot, "--plot", PLOT_SUFFIXES),
+                                   (json_path, "--json", JSON_SUFFIXES)):
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
     t0 = time.perf_counter()
     model = bus.build(dt_s)
     overrides = _overrides(set_)
@@ -178,19 +207,19 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
                   f" (compile/cache {compile_s:.2f} s); simulated in "
                   f"{1e3 * summary['wall_time_s']:.1f} ms[/]", highlight=False)
     if json_path:
-        write_json(summary, json_path)
+        _write(json_path, lambda tmp: write_json(summary, tmp))
         console.print(f"summary -> {json_path}")
     if out:
         frame = run.trace_frame()
-        if out.suffix == ".csv":
-            frame.to_csv(out, index=False)
+        if out.suffix.lower() == ".csv":
+            _write(out, lambda tmp: frame.to_csv(tmp, index=False))
         else:
-            frame.to_parquet(out, index=False)
+            _write(out, lambda tmp: frame.to_parquet(tmp, index=False))
         console.print(f"trace ({len(frame)} rows x {frame.shape[1]} signals) -> {out}")
     if plot:
         from ebus_env.plotting import plot_trace
 
-        plot_trace(run.results[0], plot)
+        _write(plot, lambda tmp: plot_trace(run.results[0], tmp))
         if len(run.results) > 1:
             console.print("[yellow]plot shows the first segment only[/]")
         console.print(f"plot -> {plot}")
@@ -268,11 +297,20 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
     from ebus_env.calibration import calibrate as run_calibration
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.config import load_bus
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES, check_output
     from ebus_env.report import calibration_tables, write_json
 
     console = _console()
     cfg = load_calibration_config(config)
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    inputs = _inputs(logs, validate, overlay, [bus.path, _config_file(config)], effects=with_)
+    plots = [] if plot is None else [plot, plot.with_name(plot.stem + "_history" + plot.suffix),
+                                     plot.with_name(plot.stem + "_determinacy" + plot.suffix)]
+    for path, option, suffixes in ((out, "--out", YAML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES),
+                                   (history, "--history", (".csv",)),
+                                   *((p, "--plot", PLOT_SUFFIXES) for p in plots)):
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
     model = bus.build()
     fixed = {**cfg.fixed, **_overrides(fix)}
     base = model.param_vector(fixed)
@@ -325,26 +363,26 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
     if result.interrupted:
         console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
     if out:
-        result.write_overlay(out)
+        _write(out, result.write_overlay)
         console.print(f"overlay -> {out}  (ebus simulate --bus {bus_name} --overlay {out})")
     if json_path:
-        write_json(result.to_json(), json_path)
+        _write(json_path, lambda tmp: write_json(result.to_json(), tmp))
         console.print(f"results -> {json_path}")
     if plot:
-        result.plot(plot)
-        history_png = plot.with_name(plot.stem + "_history" + plot.suffix)
-        result.plot_history(history_png)
-        written = [plot, history_png]
+        _write(plots[0], result.plot)
+        _write(plots[1], result.plot_history)
+        written = plots[:2]
         if result.determinacy:
-            written.append(plot.with_name(plot.stem + "_determinacy" + plot.suffix))
-            result.plot_determinacy(written[-1])
+            _write(plots[2], result.plot_determinacy)
+            written = plots
         console.print(f"plots -> {', '.join(map(str, written))}")
     if history:
         import pandas as pd
 
-        pd.DataFrame({"iteration": range(len(result.history.best_cost)),
-                      "evaluations": result.history.evaluations,
-                      "best_cost": result.history.best_cost}).to_csv(history, index=False)
+        frame = pd.DataFrame({"iteration": range(len(result.history.best_cost)),
+                              "evaluations": result.history.evaluations,
+                              "best_cost": result.history.best_cost})
+        _write(history, lambda tmp: frame.to_csv(tmp, index=False))
         console.print(f"history -> {history}")
 
 
@@ -391,10 +429,15 @@ def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, jso
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.report import console_tables
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, check_output
 
     console = _console()
     cfg = load_calibration_config(config)
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    inputs = _inputs(logs, overlay, [bus.path, _config_file(config)], effects=[*(with_ or []), *(add or [])])
+    for path, option, suffixes in ((html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)):
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
     model = bus.build()
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, columns, gaps, fill, check_units, console,
@@ -410,10 +453,10 @@ def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, jso
     console.print(f"[{style}]{result.sentence}[/]", highlight=False)
     console.print(f"[dim]{result.timings['total_s']:.1f} s[/]", highlight=False)
     if html:
-        result.write_html(html)
+        _write(html, result.write_html)
         console.print(f"report -> {html}")
     if json_path:
-        result.write_json(json_path)
+        _write(json_path, result.write_json)
         console.print(f"results -> {json_path}")
 
 
@@ -554,7 +597,9 @@ def demo(
 
     def body():
         from ebus_env.demo import run_demo
+        from ebus_env.outputs import check_folder
 
+        check_folder(out, "--out")
         path = run_demo(out, console=_console())
         _console().print(f"[bold green]report ->[/] {path}")
 
