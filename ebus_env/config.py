@@ -28,11 +28,9 @@ from pathlib import Path
 
 import yaml
 
+from ebus_env import paths
 from ebus_env.effects.base import Effect, get_effect, registered_effects
 from ebus_env.errors import ConfigError, unknown_name
-
-ROOT = Path(__file__).resolve().parent.parent
-"""Repository root: ``configs/`` and ``data/`` live here."""
 
 
 @dataclass
@@ -184,18 +182,18 @@ def read_yaml(path: Path) -> dict:
 
 
 def find_config(name: str | Path, kind: str = "bus") -> Path:
-    """A config path: as given, or ``configs/<kind>/<name>.yaml`` here or in the repository."""
+    """A config path: as given, or ``configs/<kind>/<name>.yaml`` in the working folder or
+    among the shipped configs."""
     path = Path(name)
     if path.suffix in (".yaml", ".yml"):
         if path.exists():
             return path
         raise ConfigError(f"Config file {path} does not exist.")
-    for base in (Path.cwd() / "configs" / kind, ROOT / "configs" / kind):
+    for base in (Path.cwd() / "configs" / kind, paths.configs(kind)):
         candidate = base / f"{name}.yaml"
         if candidate.exists():
             return candidate
-    available = sorted(p.stem for p in (ROOT / "configs" / kind).glob("*.yaml"))
-    raise unknown_name(f"{kind} config", str(name), available)
+    raise unknown_name(f"{kind} config", str(name), paths.config_names(kind))
 
 
 def load_bus(name: str | Path, with_=(), without=(), overlays=()) -> BusConfig:

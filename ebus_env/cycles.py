@@ -18,12 +18,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ebus_env.config import ROOT, Service
+from ebus_env import paths
+from ebus_env.config import Service
 from ebus_env.errors import ConfigError, unknown_name
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
-CYCLE_DIR = ROOT / "data" / "cycles"
+CYCLE_DIR = paths.data("cycles")
 
 
 @dataclass(frozen=True)

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.cycles import Cycle
 from ebus_env.errors import unknown_name
 from ebus_env.grade import grade_from_altitude
 
-ROUTE_DIR = ROOT / "data" / "routes" / "king_county"
+ROUTE_DIR = paths.data("routes", "king_county")
 ROUTES = {
     "kc45_out": "rt45_sh31045010_d0.csv", "kc45_back": "rt45_sh31045010_d1.csv",
     "kc7_out": "rt7_sh10007006_d0.csv", "kc7_back": "rt7_sh10007006_d1.csv",

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ebus_env.config import ROOT, Service, load_bus
+from ebus_env import paths
+from ebus_env.config import Service, load_bus
 from ebus_env.cycles import load_cycle, service_day
 from ebus_env.profile import Profile
 from ebus_env.routes import load_route
 
-OUT_DIR = ROOT / "data" / "measured" / "hidden"
+OUT_DIR = paths.data("measured", "hidden")
 BUS = "12m"
 DT_S = 0.1
 SEED = 2023
@@ -101,7 +102,7 @@ def hidden_effect(c: Case):
 
     if c.effect is None:
         return None
-    return resolve_effect(str(ROOT / c.effect) if ".py:" in c.effect else c.effect)
+    return resolve_effect(str(paths.checkout() / c.effect) if ".py:" in c.effect else c.effect)
 
 
 def true_bus(c: Case):

@@ -9,13 +9,13 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
 from ebus_env.envs.climate import climate_of
 from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
 from ebus_env.errors import ConfigError
 
-CONFIG_DIR = ROOT / "configs" / "env"
+CONFIG_DIR = paths.configs("env")
 SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h", "service_lost_h")  # in info, with OUT
 
 

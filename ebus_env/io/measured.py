@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ebus_env.config import ROOT, find_config, read_yaml
+from ebus_env import paths
+from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
 from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
 from ebus_env.profile import Profile
@@ -471,4 +472,4 @@ def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:
 
 
 def preset_names() -> list[str]:
-    return sorted(p.stem for p in (ROOT / "configs" / "logs").glob("*.yaml"))
+    return paths.config_names("logs")
