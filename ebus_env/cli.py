@@ -57,6 +57,8 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
 def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, notes=None):
     """Profiles of measured logs, with the loader's report printed (and its changes appended
     to ``notes``)."""
+    from rich.markup import escape
+
     from ebus_env.io.measured import load_log
 
     vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
@@ -69,9 +71,12 @@ def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, 
         if notes is not None:
             notes += log.report.changes
         for line in log.report.changes:
-            console.print(f"[dim]loader ({Path(path).name}):[/] {line}", highlight=False)
+            console.print(f"[dim]loader ({Path(path).name}):[/] {escape(line)}", highlight=False,
+                          soft_wrap=True)
         for line in log.report.warnings + log.report.ignored:
-            console.print(f"[yellow]loader ({Path(path).name}):[/] {line}", highlight=False)
+            console.print(f"[yellow]loader ({Path(path).name}):[/] {escape(line)}",
+                          highlight=False,
+                          soft_wrap=True)
     return profiles
 
 
@@ -98,12 +103,45 @@ def _write(path: Path, writer) -> None:
 
 
 def _run(fn):
-    """Run a command body, printing user errors without a traceback."""
-    try:
-        return fn()
-    except EbusError as exc:
-        _console().print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2) from None
+    """Run a command body, printing user errors without a traceback and input warnings
+    (:class:`~ebus_env.errors.InputWarning`) as they come."""
+    import warnings
+
+    from rich.markup import escape
+
+    from ebus_env.errors import InputWarning
+
+    console = _console()
+    original = warnings.showwarning
+    shown: set[str] = set()
+
+    def show(message, category, *args, **kwargs):
+        if issubclass(category, InputWarning):
+            if str(message) not in shown:  # a value checked where it is read and where used
+                shown.add(str(message))
+                console.print(f"[yellow]warning:[/] {escape(str(message))}", highlight=False,
+                              soft_wrap=True)
+        else:
+            original(message, category, *args, **kwargs)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        warnings.showwarning = show
+        try:
+            return fn()
+        except EbusError as exc:
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
+                          soft_wrap=True)
+            raise typer.Exit(2) from None
+        except Exception as exc:  # a user's effect numba cannot compile: say which and why
+            from ebus_env.effects.compile_errors import explain
+
+            explained = explain(exc)
+            if explained is None:
+                raise
+            console.print(f"[bold red]error:[/] {escape(str(explained))}", highlight=False,
+                          soft_wrap=True)
+            raise typer.Exit(2) from None
 
 
 @app.command()
@@ -145,14 +183,17 @@ def simulate(
 def _load_frac(load: str) -> float:
     from ebus_env.config import LOAD_CATEGORIES
     from ebus_env.errors import ConfigError
+    from ebus_env.inputs import check
 
     if load in LOAD_CATEGORIES:
         return LOAD_CATEGORIES[load]
     try:
-        return float(load)
+        value = float(load)
     except ValueError:
         raise ConfigError(f"--load: '{load}' is none of {', '.join(LOAD_CATEGORIES)} "
                           "and not a fraction.") from None
+    check("load_frac", value, "--load")
+    return value
 
 
 def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, soc_start_pct,
@@ -160,11 +201,14 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
               plot, json_path):
     from ebus_env.config import load_bus
     from ebus_env.errors import ConfigError
+    from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES, check_output
     from ebus_env.report import summary_tables, write_json
     from ebus_env.simulate import run_profiles
 
     console = _console()
+    if soc_start_pct is not None:
+        check("soc_start_pct", soc_start_pct, "--soc-start-pct")
     if (cycle is None) == (measured is None):
         if cycle is None and measured is None:
             cycle = "sort2"
@@ -198,6 +242,10 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
         soc_start = bus.service.soc_start_pct / 100.0
     run = run_profiles(model, profiles, params, soc_start, record)
     summary = run.summary
+    if soc_start is None and "soc_frac" not in profiles[0].measured:
+        console.print(f"[yellow]note:[/] the log has no SoC: the battery started at "
+                      f"{summary['soc_start_pct']:.1f} %, the model's initial state; set it "
+                      "with --soc-start-pct", highlight=False, soft_wrap=True)
     summary["compile_or_load_s"] = compile_s
     title = f"{bus.name} on {run.label}"
     figures, breakdown = summary_tables(summary, title)
@@ -297,10 +345,14 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
     from ebus_env.calibration import calibrate as run_calibration
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.config import load_bus
+    from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES, check_output
     from ebus_env.report import calibration_tables, write_json
 
     console = _console()
+    for name, value in (("population", population), ("iterations", iterations)):
+        if value is not None:
+            check(name, value, f"--{name}")
     cfg = load_calibration_config(config)
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
     inputs = _inputs(logs, validate, overlay, [bus.path, _config_file(config)], effects=with_)
@@ -330,8 +382,9 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         check = _load_logs(validate or [], model, base, columns, gaps, fill, check_units,
                            console)
     free = _split([params]) if params else cfg.params
-    settings = replace(cfg.isopt, seed=seed, **({"population": population} if population else {}),
-                       **({"iterations": iterations} if iterations else {}))
+    settings = replace(cfg.isopt, seed=seed,
+                       **({} if population is None else {"population": population}),
+                       **({} if iterations is None else {"iterations": iterations}))
     model.compile(sample=True)
     total = settings.iterations if not windowed else None
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
@@ -412,36 +465,55 @@ def diagnose(
     gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+    set_: SetOpt = None,
 ):
     """Where the model fails against measurements, and which effect is missing.
 
     Shows the error before and after adding each effect (--add), re-calibrated each time."""
     _run(lambda: _diagnose(logs, bus, with_, without, overlay, calibrate, add, html,
                            json_path, window_s, config, seed, columns, gaps, fill,
-                           not no_unit_check))
+                           not no_unit_check, set_))
 
 
 def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, json_path,
-              window_s, config, seed, columns, gaps, fill, check_units):
+              window_s, config, seed, columns, gaps, fill, check_units, set_):
     from dataclasses import replace
 
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.report import console_tables
+    from ebus_env.errors import LogError
+    from ebus_env.inputs import check
     from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, check_output
 
     console = _console()
+    if window_s is not None:
+        check("window_s", window_s, "--window-s")
     cfg = load_calibration_config(config)
     bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
-    inputs = _inputs(logs, overlay, [bus.path, _config_file(config)], effects=[*(with_ or []), *(add or [])])
+    overrides = _overrides(set_)
+    if overrides:  # as an overlay, so that every model the diagnosis builds has them
+        params: dict = {}
+        for key, value in overrides.items():
+            effect_name, param = key.split(".", 1)
+            params.setdefault(effect_name, {})[param] = value
+        bus = bus.overlay({"params": params}, "--set")
+    inputs = _inputs(logs, overlay, [bus.path, _config_file(config)],
+                     effects=[*(with_ or []), *(add or [])])
     for path, option, suffixes in ((html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)):
         if path is not None:
             check_output(path, option, suffixes, inputs)
     model = bus.build()
+    model.param_vector(overrides)  # unknown names and values outside bounds fail here
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, columns, gaps, fill, check_units, console,
                           notes)
+    without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
+    if without_soc:
+        raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "
+                       f"{', '.join(without_soc)} have none", fix="give logs with a soc_pct "
+                       "(or soc_frac) column, or map it with --columns")
     with console.status("diagnosing") as status:
         result = run_diagnosis(bus, profiles, calibrate=calibrate, add=_split(add),
                                window_s=window_s, settings=replace(cfg.isopt, seed=seed),

@@ -21,6 +21,7 @@ import numpy as np
 from ebus_env import paths
 from ebus_env.config import Service
 from ebus_env.errors import ConfigError, unknown_name
+from ebus_env.inputs import check
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
@@ -184,9 +185,15 @@ def service_day(cycle: Cycle | str, hours: float, dt_s: float = 0.1,
     A ``passenger_profile`` ({hour of day: passengers}) sets the passengers over the day.
     """
     service = service or Service()
+    check("hours", hours, "hours")
+    check("dt_s", dt_s, "dt_s")
+    check("steps", hours * 3600.0 / dt_s, f"{hours:g} h at dt {dt_s:g} s: steps")
+    if ambient_degc is not None:
+        check("ambient_degc", ambient_degc, "ambient_degc")
     if isinstance(cycle, str):
         cycle = load_cycle(cycle)
     if mean_speed_kmh is not None:
+        check("mean_speed_kmh", mean_speed_kmh, "mean_speed_kmh")
         cycle = cycle.scaled(mean_speed_kmh)
     lap = cycle.lap(dt_s)
     n_lap = len(lap["speed_ref_mps"])

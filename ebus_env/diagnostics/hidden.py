@@ -13,7 +13,6 @@ quantised to 0.1 %, no battery current or voltage. The baseline the diagnosis st
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -211,6 +210,17 @@ def write_all(folder: str | Path = OUT_DIR, seed: int = SEED) -> list[Path]:
     return written
 
 
-if __name__ == "__main__":  # pragma: no cover
-    for p in write_all(*(sys.argv[1:2] or [])):
+def main(argv: list[str] | None = None) -> None:
+    """``python -m ebus_env.diagnostics.hidden [--help] [FOLDER]``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m ebus_env.diagnostics.hidden",
+                                     description="Write the hidden-effect logs and cases.json.")
+    parser.add_argument("folder", nargs="?", type=Path, default=OUT_DIR,
+                        help=f"output folder (default: {OUT_DIR})")
+    for p in write_all(parser.parse_args(argv).folder):
         print(p)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
