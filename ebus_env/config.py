@@ -31,7 +31,7 @@ import yaml
 from ebus_env import paths
 from ebus_env.effects.base import Effect, get_effect, registered_effects
 from ebus_env.errors import ConfigError, unknown_name
-from ebus_env.inputs import check
+from ebus_env.inputs import RANGES, check
 
 
 @dataclass
@@ -207,6 +207,9 @@ def check_service(service: Service, source: str) -> None:
     for key, name in _SERVICE_RANGES.items():
         value = getattr(service, key)
         no_layovers = key == "layover_every_min" and service.layover_min == 0 and value == 0
+        if value is None and getattr(Service, key) is not None:
+            raise ConfigError(f"{source}: service.{key} is empty; give a number in "
+                              f"{RANGES[name].text()}.")
         if value is not None and not no_layovers:
             check(name, value, f"{source}: service.{key}")
     if not isinstance(service.charge_at_layovers, bool):

@@ -245,6 +245,9 @@ def _check_period(t: np.ndarray, dt_s: float, path: Path, report: LoadReport) ->
     except ConfigError as exc:
         raise LogError(str(exc), path=path, column="time_s",
                        fix="give a log sampled at 0.5-20 Hz") from None
+    if t[-1] < dt_s:
+        raise LogError(f"The log lasts {t[-1]:g} s, less than one time step of {dt_s:g} s",
+                       path=path, column="time_s", fix="give a longer log")
     if t[-1] / dt_s > MAX_STEPS:
         raise LogError(f"The log lasts {t[-1] / 3600:.1f} h: {t[-1] / dt_s:,.0f} steps of "
                        f"{dt_s:g} s, more than one run holds ({MAX_STEPS:,})", path=path,
