@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -27,6 +28,37 @@ SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", help="Override a parameter: effect.param=value (repeatable)")]
 OverlayOpt = Annotated[list[Path] | None, typer.Option(
     "--overlay", help="Bus-config overlay to merge, e.g. a calibration result")]
+
+
+@dataclass(frozen=True)
+class BusChoice:
+    """The bus of a command: ``--bus``, ``--with``, ``--without``, ``--overlay``."""
+
+    name: str
+    with_: list[str] | None = None
+    without: list[str] | None = None
+    overlays: list[Path] | None = None
+
+    def load(self):
+        """The :class:`~ebus_env.config.BusConfig`, effects added and removed, overlays merged."""
+        from ebus_env.config import load_bus
+
+        return load_bus(self.name, with_=_split(self.with_), without=_split(self.without),
+                        overlays=self.overlays or [])
+
+    def files(self, bus) -> list[Path]:
+        """The files this choice reads: the bus config, the overlays, the effect files."""
+        return _inputs([bus.path], self.overlays, effects=self.with_)
+
+
+@dataclass(frozen=True)
+class LogHandling:
+    """How measured logs are read: ``--columns``, ``--gaps``, ``--fill``, ``--no-unit-check``."""
+
+    columns: str | None = None
+    gaps: str = "error"
+    fill: str = "error"
+    check_units: bool = True
 
 
 def _console():
@@ -54,7 +86,7 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, notes=None):
+def _load_logs(paths, model, params, handling: LogHandling, console, notes=None):
     """Profiles of measured logs, with the loader's report printed (and its changes appended
     to ``notes``)."""
     from rich.markup import escape
@@ -65,8 +97,9 @@ def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, 
         if model.has_effect("vehicle_body") else None
     profiles = []
     for path in paths:
-        log = load_log(path, model.dt_s, columns=columns, gaps=gaps, fill=fill,
-                       check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
+        log = load_log(path, model.dt_s, columns=handling.columns, gaps=handling.gaps,
+                       fill=handling.fill, check_units=handling.check_units, max_speed_kmh=vmax,
+                       max_accel_mps2=4.0)
         profiles += log.profiles
         if notes is not None:
             notes += log.report.changes
@@ -92,6 +125,15 @@ def _config_file(config: str | None) -> Path | None:
     from ebus_env.config import find_config
 
     return None if config is None else find_config(config, kind="calibration")
+
+
+def _check_outputs(outputs, inputs: list[Path]) -> None:
+    """Check each ``(path, option, suffixes)`` output given (see :func:`check_output`)."""
+    from ebus_env.outputs import check_output
+
+    for path, option, suffixes in outputs:
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
 
 
 def _write(path: Path, writer) -> None:
@@ -175,9 +217,11 @@ def simulate(
     = None,
 ):
     """Run a bus through a cycle day or a measured log and print the energy table."""
-    _run(lambda: _simulate(bus, cycle, measured, hours, mean_speed_kmh, ambient_degc,
-                           soc_start_pct, load, with_, without, set_, overlay, columns, gaps,
-                           fill, not no_unit_check, dt_s, out, plot, json_path))
+    _run(lambda: _simulate(
+        BusChoice(bus, with_, without, overlay), LogHandling(columns, gaps, fill, not no_unit_check),
+        cycle=cycle, measured=measured, hours=hours, mean_speed_kmh=mean_speed_kmh,
+        ambient_degc=ambient_degc, soc_start_pct=soc_start_pct, load=load, set_=set_, dt_s=dt_s,
+        out=out, plot=plot, json_path=json_path))
 
 
 def _load_frac(load: str) -> float:
@@ -196,13 +240,12 @@ def _load_frac(load: str) -> float:
     return value
 
 
-def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, soc_start_pct,
-              load, with_, without, set_, overlay, columns, gaps, fill, check_units, dt_s, out,
-              plot, json_path):
-    from ebus_env.config import load_bus
+def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hours,
+              mean_speed_kmh, ambient_degc, soc_start_pct, load, set_, dt_s, out, plot,
+              json_path):
     from ebus_env.errors import ConfigError
     from ebus_env.inputs import check
-    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES, check_output
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES
     from ebus_env.report import summary_tables, write_json
     from ebus_env.simulate import run_profiles
 
@@ -214,13 +257,11 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
             cycle = "sort2"
         else:
             raise ConfigError("Give either --cycle or --measured, not both.")
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    bus = choice.load()
     cycle_file = Path(cycle) if cycle is not None and Path(cycle).is_file() else None
-    inputs = _inputs([measured, bus.path, cycle_file], overlay, effects=with_)
-    for path, option, suffixes in ((out, "--out", TABLE_SUFFIXES), (plot, "--plot", PLOT_SUFFIXES),
-                                   (json_path, "--json", JSON_SUFFIXES)):
-        if path is not None:
-            check_output(path, option, suffixes, inputs)
+    _check_outputs([(out, "--out", TABLE_SUFFIXES), (plot, "--plot", PLOT_SUFFIXES),
+                    (json_path, "--json", JSON_SUFFIXES)],
+                   choice.files(bus) + _inputs([measured, cycle_file]))
     t0 = time.perf_counter()
     model = bus.build(dt_s)
     overrides = _overrides(set_)
@@ -230,7 +271,7 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
     record = out is not None or plot is not None or measured is not None
     compile_s = model.compile(record)
     if measured is not None:
-        profiles = _load_logs([measured], model, params, columns, gaps, fill, check_units, console)
+        profiles = _load_logs([measured], model, params, handling, console)
     else:
         from ebus_env.cycles import service_day
 
@@ -315,10 +356,12 @@ def calibrate(
     = None,
 ):
     """Fit the model's uncertain parameters to measured SoC (iSOPT, offline or windowed)."""
-    _run(lambda: _calibrate(logs, bus, params, fix, range_, windowed, validate, seed, population,
-                            iterations, categorical_load, config, with_, without, overlay,
-                            columns, gaps, fill, not no_unit_check, sparse, sparse_cycle, out,
-                            json_path, plot, history))
+    _run(lambda: _calibrate(
+        logs, BusChoice(bus, with_, without, overlay),
+        LogHandling(columns, gaps, fill, not no_unit_check), params=params, fix=fix,
+        range_=range_, windowed=windowed, validate=validate, seed=seed, population=population,
+        iterations=iterations, categorical_load=categorical_load, config=config, sparse=sparse,
+        sparse_cycle=sparse_cycle, out=out, json_path=json_path, plot=plot, history=history))
 
 
 def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
@@ -335,18 +378,17 @@ def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
     return out
 
 
-def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, population,
-               iterations, categorical_load, config, with_, without, overlay, columns, gaps,
-               fill, check_units, sparse, sparse_cycle, out, json_path, plot, history):
+def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, range_, windowed,
+               validate, seed, population, iterations, categorical_load, config, sparse,
+               sparse_cycle, out, json_path, plot, history):
     from dataclasses import replace
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ebus_env.calibration import calibrate as run_calibration
     from ebus_env.calibration.settings import load_calibration_config
-    from ebus_env.config import load_bus
     from ebus_env.inputs import check
-    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES, check_output
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES
     from ebus_env.report import calibration_tables, write_json
 
     console = _console()
@@ -354,15 +396,12 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         if value is not None:
             check(name, value, f"--{name}")
     cfg = load_calibration_config(config)
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
-    inputs = _inputs(logs, validate, overlay, [bus.path, _config_file(config)], effects=with_)
+    bus = choice.load()
     plots = [] if plot is None else [plot, plot.with_name(plot.stem + "_history" + plot.suffix),
                                      plot.with_name(plot.stem + "_determinacy" + plot.suffix)]
-    for path, option, suffixes in ((out, "--out", YAML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES),
-                                   (history, "--history", (".csv",)),
-                                   *((p, "--plot", PLOT_SUFFIXES) for p in plots)):
-        if path is not None:
-            check_output(path, option, suffixes, inputs)
+    _check_outputs([(out, "--out", YAML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES),
+                    (history, "--history", (".csv",)), *((p, "--plot", PLOT_SUFFIXES) for p in plots)],
+                   choice.files(bus) + _inputs(logs, validate, [_config_file(config)]))
     model = bus.build()
     fixed = {**cfg.fixed, **_overrides(fix)}
     base = model.param_vector(fixed)
@@ -370,7 +409,7 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         from ebus_env.io.sparse import load_sparse_log
 
         vmax = base[model.param_index("vehicle_body.max_speed_kmh")]
-        loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=columns,
+        loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=handling.columns,
                                   max_speed_kmh=vmax) for p in [*logs, *(validate or [])]]
         for path, log in zip([*logs, *(validate or [])], loaded, strict=True):
             for line in log.report.changes:
@@ -378,9 +417,8 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         profiles = [log.profile for log in loaded[:len(logs)]]
         check = [log.profile for log in loaded[len(logs):]]
     else:
-        profiles = _load_logs(logs, model, base, columns, gaps, fill, check_units, console)
-        check = _load_logs(validate or [], model, base, columns, gaps, fill, check_units,
-                           console)
+        profiles = _load_logs(logs, model, base, handling, console)
+        check = _load_logs(validate or [], model, base, handling, console)
     free = _split([params]) if params else cfg.params
     settings = replace(cfg.isopt, seed=seed,
                        **({} if population is None else {"population": population}),
@@ -417,7 +455,7 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
     if out:
         _write(out, result.write_overlay)
-        console.print(f"overlay -> {out}  (ebus simulate --bus {bus_name} --overlay {out})")
+        console.print(f"overlay -> {out}  (ebus simulate --bus {choice.name} --overlay {out})")
     if json_path:
         _write(json_path, lambda tmp: write_json(result.to_json(), tmp))
         console.print(f"results -> {json_path}")
@@ -470,28 +508,28 @@ def diagnose(
     """Where the model fails against measurements, and which effect is missing.
 
     Shows the error before and after adding each effect (--add), re-calibrated each time."""
-    _run(lambda: _diagnose(logs, bus, with_, without, overlay, calibrate, add, html,
-                           json_path, window_s, config, seed, columns, gaps, fill,
-                           not no_unit_check, set_))
+    _run(lambda: _diagnose(
+        logs, BusChoice(bus, with_, without, overlay),
+        LogHandling(columns, gaps, fill, not no_unit_check), calibrate=calibrate, add=add,
+        html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_))
 
 
-def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, json_path,
-              window_s, config, seed, columns, gaps, fill, check_units, set_):
+def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add, html, json_path,
+              window_s, config, seed, set_):
     from dataclasses import replace
 
     from ebus_env.calibration.settings import load_calibration_config
-    from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.report import console_tables
     from ebus_env.errors import LogError
     from ebus_env.inputs import check
-    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, check_output
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES
 
     console = _console()
     if window_s is not None:
         check("window_s", window_s, "--window-s")
     cfg = load_calibration_config(config)
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    bus = choice.load()
     overrides = _overrides(set_)
     if overrides:  # as an overlay, so that every model the diagnosis builds has them
         params: dict = {}
@@ -499,16 +537,12 @@ def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, jso
             effect_name, param = key.split(".", 1)
             params.setdefault(effect_name, {})[param] = value
         bus = bus.overlay({"params": params}, "--set")
-    inputs = _inputs(logs, overlay, [bus.path, _config_file(config)],
-                     effects=[*(with_ or []), *(add or [])])
-    for path, option, suffixes in ((html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)):
-        if path is not None:
-            check_output(path, option, suffixes, inputs)
+    _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
+                   choice.files(bus) + _inputs(logs, [_config_file(config)], effects=add))
     model = bus.build()
     model.param_vector(overrides)  # unknown names and values outside bounds fail here
     notes: list[str] = []
-    profiles = _load_logs(logs, model, model.params, columns, gaps, fill, check_units, console,
-                          notes)
+    profiles = _load_logs(logs, model, model.params, handling, console, notes)
     without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
     if without_soc:
         raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "
