@@ -191,7 +191,8 @@ def simulate(
     bus: BusOpt = "12m",
     cycle: Annotated[str | None, typer.Option(help="Cycle name (see `ebus cycles`) or CSV")] = None,
     measured: Annotated[Path | None, typer.Option(help="Measured log (CSV/Parquet) to replay")] = None,
-    hours: Annotated[float, typer.Option(help="Length of the cycle day [h]")] = 13.5,
+    hours: Annotated[float | None, typer.Option(
+        help="Length of the cycle day [h] (default 13.5)")] = None,
     mean_speed_kmh: Annotated[float | None, typer.Option(
         help="Scale the cycle to this mean speed [km/h]")] = None,
     ambient_degc: Annotated[float | None, typer.Option(help="Ambient for cycle days [degC]")] = None,
@@ -257,6 +258,13 @@ def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hour
             cycle = "sort2"
         else:
             raise ConfigError("Give either --cycle or --measured, not both.")
+    day_options = {"--hours": hours, "--mean-speed-kmh": mean_speed_kmh,
+                   "--ambient-degc": ambient_degc}
+    given = [option for option, value in day_options.items() if value is not None]
+    if measured is not None and given:
+        raise ConfigError(f"{', '.join(given)} shape(s) a cycle day; a measured log keeps its "
+                          "own length, speeds and ambient. Fix: drop them, or use --cycle.")
+    hours = 13.5 if hours is None else hours
     bus = choice.load()
     cycle_file = Path(cycle) if cycle is not None and Path(cycle).is_file() else None
     _check_outputs([(out, "--out", TABLE_SUFFIXES), (plot, "--plot", PLOT_SUFFIXES),
@@ -374,6 +382,8 @@ def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
             low, high = (float(x) for x in value.split(":"))
         except ValueError:
             raise ConfigError(f"--range needs effect.param=low:high, got '{item}'.") from None
+        if not low < high:  # NaN fails too
+            raise ConfigError(f"--range {item}: low must be below high.")
         out[name.strip()] = (low, high)
     return out
 

@@ -17,6 +17,7 @@ from ebus_env import paths
 from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.io.measured import load_log
+from ebus_env.outputs import write_text
 from ebus_env.report import BREAKDOWN_LABELS, FIGURES, write_json
 from ebus_env.simulate import run_profiles
 
@@ -143,6 +144,6 @@ def run_demo(out: Path, console=None) -> Path:
             "img{max-width:100%}</style></head><body><h1>ebus-env demo report</h1>"
             f"{body}</body></html>")
     path = out / "index.html"
-    path.write_text(page)
+    write_text(path, page)
     write_json(numbers, out / "summary.json")
     return path

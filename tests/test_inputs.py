@@ -254,3 +254,17 @@ def test_a_delay_beyond_its_observation_bound_is_in_info_and_warned():
 def test_every_error_here_is_the_projects_own():
     assert issubclass(ConfigError, EbusError) and issubclass(LogError, EbusError)
     assert issubclass(EnvError, EbusError)
+
+
+def test_cycle_day_options_with_a_measured_log_are_refused_not_ignored():
+    log = ROOT / "data/measured/bmw_i3_tum/TripB02_1hz.csv"
+    code, out = invoke("simulate", "--bus", "bmw_i3", "--measured", log, "--hours", "2",
+                       "--ambient-degc", "5")
+    assert code == 2 and "--hours, --ambient-degc shape(s) a cycle day" in out
+
+
+def test_a_calibration_range_with_low_above_high_is_refused():
+    log = ROOT / "data/measured/bmw_i3_tum/TripB02_1hz.csv"
+    code, out = invoke("calibrate", log, "--bus", "bmw_i3", "--range",
+                       "vehicle_body.curb_mass_kg=1500:1200")
+    assert code == 2 and "low must be below high" in out

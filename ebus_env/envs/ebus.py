@@ -17,6 +17,8 @@ from ebus_env.errors import ActionError, ConfigError, EnvError
 from ebus_env.inputs import ENV_KEYS, check
 
 CONFIG_DIR = paths.configs("env")
+_IN_INFO = [(k, o) for k, o in enumerate(OBSERVATIONS) if o[0] in OUT]
+"""Observations whose true value ``info`` carries (from ``OUT``), checked against the bounds."""
 SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h", "service_lost_h")  # in info, with OUT
 
 
@@ -302,9 +304,9 @@ class EBusEnv(gym.Env):
         """Name the observations whose true value lies beyond the observation bounds (the
         observation holds the bound; ``info`` the true value), warning once per episode."""
         clipped = []
-        for k, (name, unit, low, high) in enumerate(OBSERVATIONS):
-            true = info.get(name)
-            if true is not None and not low <= true <= high:
+        for k, (name, unit, low, high) in _IN_INFO:
+            true = info[name]
+            if not low <= true <= high:
                 clipped.append(name)
                 if name not in self._warned:
                     self._warned.add(name)
