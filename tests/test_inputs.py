@@ -268,3 +268,22 @@ def test_a_calibration_range_with_low_above_high_is_refused():
     code, out = invoke("calibrate", log, "--bus", "bmw_i3", "--range",
                        "vehicle_body.curb_mass_kg=1500:1200")
     assert code == 2 and "low must be below high" in out
+
+
+@pytest.mark.parametrize(("edit", "words"), [
+    (lambda f: f.assign(soc_pct=f["soc_pct"] / 100), "looks like a fraction"),
+    (lambda f: f.assign(time_s=f["time_s"] / 10_000), "closer than one time step"),
+    (lambda f: f.assign(distance_km=f["distance_km"] * 1000), "more than 400 km/h"),
+    (lambda f: f.assign(ambient_degc=285.0), "not kelvin"),
+    (lambda f: f.assign(soc_pct=150.0), "soc_pct"),
+])
+def test_sparse_logs_with_implausible_values_are_refused(tmp_path, edit, words):
+    from ebus_env.io.sparse import load_sparse_log
+
+    t = np.arange(0, 3600 * 3, 300.0)
+    frame = pd.DataFrame({"time_s": t, "distance_km": 0.004 * t, "soc_pct": 90 - t / 1000})
+    frame.to_csv(tmp_path / "ok.csv", index=False)
+    assert load_sparse_log(tmp_path / "ok.csv", DT).profile.n_steps > 1000
+    edit(frame).to_csv(tmp_path / "bad.csv", index=False)
+    with pytest.raises(LogError, match=words):
+        load_sparse_log(tmp_path / "bad.csv", DT)
