@@ -20,7 +20,7 @@ import numpy as np
 
 from ebus_env import paths
 from ebus_env.cycles import Cycle
-from ebus_env.errors import unknown_name
+from ebus_env.errors import ConfigError, unknown_name
 from ebus_env.grade import grade_from_altitude
 
 ROUTE_DIR = paths.data("routes", "king_county")
@@ -104,7 +104,15 @@ def load_route(name: str | Path) -> Route:
         path = Path(name)
     else:
         raise unknown_name("route", str(name), ROUTES)
-    frame = pd.read_csv(path)
+    try:
+        frame = pd.read_csv(path)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise ConfigError(f"Route {path} cannot be read: {exc}") from None
+    columns = ("distance_m", "elevation_m", "speed_limit_kmh", "stop_id_or_-1")
+    missing = [c for c in columns if c not in frame.columns]
+    if missing or len(frame) < 2:
+        raise ConfigError(f"Route {path} needs at least two rows and the columns "
+                          f"{', '.join(columns)}; missing: {', '.join(missing) or 'rows'}.")
     stops = frame["distance_m"][frame["stop_id_or_-1"] != -1].to_numpy(float)
     return Route(Path(path).stem if str(name) not in ROUTES else str(name),
                  frame["distance_m"].to_numpy(float), frame["elevation_m"].to_numpy(float),

@@ -5,6 +5,7 @@ The ranges live in ``ebus_env.inputs``; ``docs/inputs.md`` shows them as one tab
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -287,3 +288,30 @@ def test_sparse_logs_with_implausible_values_are_refused(tmp_path, edit, words):
     edit(frame).to_csv(tmp_path / "bad.csv", index=False)
     with pytest.raises(LogError, match=words):
         load_sparse_log(tmp_path / "bad.csv", DT)
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    (None, "does not exist"),
+    ("time_s,speed\n0,1\n1,2\n", "the columns time_s, speed_kmh"),
+    ("time_s,speed_kmh\n0,1\n", "at least two rows"),
+    ("time_s,speed_kmh\n0,1\n1,-5\n", "speed_kmh outside [0, 400]"),
+    ("time_s,speed_kmh,grade_frac\n0,1,0\n1,2,5\n", "grade_frac beyond"),
+])
+def test_a_users_cycle_file_with_problems_is_refused(tmp_path, text, words):
+    from ebus_env.cycles import load_cycle
+
+    path = tmp_path / "mine.csv"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        load_cycle(str(path))
+
+
+def test_a_route_file_without_its_columns_is_refused(tmp_path):
+    from ebus_env.routes import load_route
+
+    (tmp_path / "r.csv").write_text("distance_m,elevation_m\n0,1\n10,2\n")
+    with pytest.raises(ConfigError, match="speed_limit_kmh"):
+        load_route(tmp_path / "r.csv")
+    with pytest.raises(ConfigError, match="cannot be read"):
+        load_route(tmp_path / "missing.csv")
