@@ -144,13 +144,27 @@ RANGES: dict[str, Range] = {r.name: r for r in (
           given="env `service_h`"),
     Range("decision_s", "s", 1.0, 3600.0, "Length of an env decision.",
           given="env `decision_s`"),
+    Range("passenger_frac", "1", 0.0, 1.0, "A share of the bus's passenger capacity.",
+          given="env `passengers_base_frac`, `passengers_peak_frac`, `passengers_random_frac`"),
+    Range("temperature_span_k", "K", 0.0, 30.0, "A temperature swing or spread.",
+          given="env `ambient_amplitude_k`, `ambient_random_k`"),
+    Range("jerk_mps3", "m/s^3", 0.0, 10.0, "Ramp of the acceleration (default 1 m/s^3).",
+          open_low=True, given="env `jerk_mps3`"),
+    Range("decel_mps2", "m/s^2", 0.0, 5.0, "Braking towards stops.", open_low=True,
+          given="env `comfort_decel_mps2`"),
+    Range("laps_per_trip", "1", 1.0, 1000.0, "Cycle laps between terminal layovers (a whole "
+          "number).", given="env `laps_per_trip`"),
 )}
 
 ENV_KEYS = {"service_h": "service_h", "start_time_h": "start_time_h", "dt_s": "dt_s",
             "decision_s": "decision_s", "soc_start_pct": "soc_start_pct",
             "reserve_soc_pct": "soc_start_pct", "layover_min": "layover_min",
             "min_layover_min": "min_layover_min", "charger_kw": "charger_kw",
-            "ambient_mean_degc": "ambient_degc"}
+            "ambient_mean_degc": "ambient_degc", "ambient_amplitude_k": "temperature_span_k",
+            "ambient_random_k": "temperature_span_k", "passengers_base_frac": "passenger_frac",
+            "passengers_peak_frac": "passenger_frac", "passengers_random_frac": "passenger_frac",
+            "jerk_mps3": "jerk_mps3", "comfort_decel_mps2": "decel_mps2",
+            "laps_per_trip": "laps_per_trip"}
 """Env config keys (``ebus_env.envs.ebus.EnvConfig``) and the range each one is checked in."""
 
 

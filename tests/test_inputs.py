@@ -315,3 +315,14 @@ def test_a_route_file_without_its_columns_is_refused(tmp_path):
         load_route(tmp_path / "r.csv")
     with pytest.raises(ConfigError, match="cannot be read"):
         load_route(tmp_path / "missing.csv")
+
+
+@pytest.mark.parametrize(("overrides", "words"), [
+    ({"laps_per_trip": 2.5}, "whole number"), ({"passengers_peak_frac": "x"}, "not a number"),
+    ({"ambient_random_k": -5}, "[0, 30] K"), ({"jerk_mps3": 0}, "(0, 10] m/s^3"),
+    ({"reward": {"nope": 1}}, "Unknown reward weight"), ({"bus": 3}, "must name a config"),
+    ({"charge_at_terminal": "maybe"}, "true or false"),
+])
+def test_env_config_values_of_the_wrong_kind_are_refused(overrides, words):
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        gymnasium.make("EBus-v0", **overrides).reset(seed=0)

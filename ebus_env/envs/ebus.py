@@ -124,7 +124,24 @@ class EnvConfig:
                            4.0 if amplitude is None else float(amplitude))
         for key, name in ENV_KEYS.items():
             if getattr(self, key) is not None:
-                check(name, getattr(self, key), f"env config {key}")
+                value = getattr(self, key)
+                check(name, value, f"env config {key}")
+                if key == "laps_per_trip" and float(value) != int(float(value)):
+                    raise ConfigError(f"env config laps_per_trip = {value!r} must be a whole "
+                                      "number.")
+                kind = int if key == "laps_per_trip" else float
+                object.__setattr__(self, key, kind(float(value)))  # "1e3" read from YAML
+        for key in ("bus", "overlay", "cycle", "route", "log"):
+            if not isinstance(getattr(self, key), (str, Path, type(None))):
+                raise ConfigError(f"env config {key} = {getattr(self, key)!r} must name a "
+                                  "config or file.")
+        if not isinstance(self.reward, (dict, Reward)):
+            raise ConfigError(f"env config reward = {self.reward!r} must map reward terms to "
+                              "weights (or be a Reward).")
+        for key in ("decide_at_stops", "charge_at_terminal"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"env config {key} = {getattr(self, key)!r} must be true or "
+                                  "false.")
         if self.min_layover_min > self.layover_min:
             raise ConfigError(f"env config min_layover_min = {self.min_layover_min:g} is longer "
                               f"than layover_min = {self.layover_min:g}.")
@@ -333,7 +350,13 @@ def spaces() -> tuple[gym.spaces.Box, gym.spaces.Box]:
 
 def reward_of(cfg: EnvConfig) -> Reward:
     """The config's reward: a :class:`Reward` instance as is, a dict as its weights."""
-    return cfg.reward if isinstance(cfg.reward, Reward) else Reward(**cfg.reward)
+    if isinstance(cfg.reward, Reward):
+        return cfg.reward
+    known = {f.name for f in fields(Reward) if f.init}
+    unknown = sorted(set(cfg.reward) - known)
+    if unknown:
+        raise ConfigError(f"Unknown reward weight(s) {unknown}; known: {sorted(known)}.")
+    return Reward(**cfg.reward)
 
 
 def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> dict:
