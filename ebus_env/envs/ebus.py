@@ -7,9 +7,9 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 from ebus_env import paths
+from ebus_env.config import read_yaml
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
 from ebus_env.envs.climate import climate_of
 from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
@@ -167,7 +167,7 @@ def config_keys(cls, source: str | Path | dict | None, overrides: dict, kind: st
             names = sorted(p.stem for p in folder.glob("*.yaml"))
             raise ConfigError(f"No {kind} config '{source}' (looked for {path}); shipped: "
                               f"{', '.join(names)}.")
-        data = yaml.safe_load(path.read_text()) or {}
+        data = read_yaml(path)  # bad YAML or a duplicated key: a ConfigError with the line
     data.update(overrides)
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)
