@@ -155,12 +155,13 @@ def _run(fn):
 
     console = _console()
     original = warnings.showwarning
-    shown: set[str] = set()
+    shown: set = set()
 
     def show(message, category, *args, **kwargs):
         if issubclass(category, InputWarning):
-            if str(message) not in shown:  # a value checked where it is read and where used
-                shown.add(str(message))
+            key = getattr(message, "key", str(message))
+            if key not in shown:  # a value checked where it is read and where it is used
+                shown.add(key)
                 console.print(f"[yellow]warning:[/] {escape(str(message))}", highlight=False,
                               soft_wrap=True)
         else:

@@ -31,7 +31,12 @@ class ActionError(EbusError, ValueError):
 
 class InputWarning(UserWarning):
     """An input inside its accepted range but outside the usual one (see ebus_env.inputs):
-    the run goes on, and the command line prints the warning."""
+    the run goes on, and the command line prints the warning (once per input and value:
+    ``key``)."""
+
+    def __init__(self, line: str, key: tuple | None = None):
+        super().__init__(line)
+        self.key = key or (line,)
 
 
 class LogError(EbusError, ValueError):

@@ -183,6 +183,6 @@ def check(name: str, value, source: str | None = None) -> list[str]:
     command line prints it), whose line is returned. ``source`` names where the value came
     from (``--hours``, a file and key)."""
     lines = RANGES[name].check(value, source)
-    for line in lines:
-        warnings.warn(line, InputWarning, stacklevel=2)
+    for line in lines:  # keyed by input and value: checked where read and where used
+        warnings.warn(InputWarning(line, (name, round(float(value), 9))), stacklevel=2)
     return lines
