@@ -183,9 +183,9 @@ def _check_value(key: str, qualified: str, value, source: str) -> None:
                                 and all(_is_number(v) for v in value)):
         raise ConfigError(f"{source}: bounds {qualified} = {value!r} is not a [low, high] pair "
                           "of numbers.")
-    if key == "tables" and not isinstance(value, (str, list)):
+    if key == "tables" and not isinstance(value, (str, list, dict)):
         raise ConfigError(f"{source}: tables {qualified} = {value!r} must name a table or "
-                          "list its values.")
+                          "give its values (a list, or x and y).")
 
 
 def _names(value, what: str, source: str) -> list[str]:

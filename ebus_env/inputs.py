@@ -27,7 +27,7 @@ class Range:
     Parameters
     ----------
     name
-        The input as users write it (option, config key or log column).
+        Key of the input in :data:`RANGES` (where users give it: ``given``).
     unit
         Its unit.
     low, high
