@@ -32,7 +32,7 @@ from ebus_env.simulate import run_profiles
 from tests.conftest import DT
 
 ROOT = Path(__file__).resolve().parent.parent
-FAST = settings(max_examples=100, deadline=None, derandomize=True,
+FAST = settings(max_examples=250, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
 
 # numbers a user may type: ordinary, extreme, negative, zero, not finite
@@ -137,7 +137,7 @@ def test_generated_bus_configs_load_or_fail_clearly(key, value, mass):
 runner = CliRunner()
 
 
-@settings(max_examples=60, deadline=None, derandomize=True,
+@settings(max_examples=150, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow])
 @given(hours=st.one_of(st.sampled_from([0.1, 0.2]), numbers),
        dt=st.sampled_from(["0.1", "0.5", "0", "-1", "nan", "60"]),
@@ -211,3 +211,31 @@ def test_whole_days_of_random_valid_actions_stay_finite(seed, scale):
         obs, reward, terminated, truncated, info = env.step(action)
         assert np.isfinite(obs).all() and math.isfinite(reward)
         assert finite(info["breakdown_kwh"])
+
+
+ACCEPTED = {"--out": (".parquet", ".csv"), "--json": (".json",), "--plot": (".png", ".svg", ".pdf")}
+
+
+@settings(max_examples=30, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(option=st.sampled_from(sorted(ACCEPTED)),
+       suffix=st.sampled_from([".parquet", ".csv", ".json", ".png", ".svg", ".pdf", ".txt",
+                               ".bmp", ".CSV", ""]),
+       exists=st.booleans())
+def test_generated_output_paths_are_written_whole_or_refused_before_the_run(option, suffix,
+                                                                             exists):
+    with tempfile.TemporaryDirectory() as folder:
+        target = Path(folder) / "sub" / f"result{suffix}"
+        if exists:
+            target.parent.mkdir()
+            target.write_text("old")
+        result = runner.invoke(app, ["simulate", "--hours", "0.05", option, str(target)])
+        assert result.exception is None or isinstance(result.exception, SystemExit)
+        if suffix.lower() in ACCEPTED[option]:
+            assert result.exit_code == 0, result.output
+            assert target.stat().st_size > 100
+        else:
+            assert result.exit_code == 2 and "Accepted" in result.output
+            assert not target.exists() or target.read_text() == "old"
+        if target.parent.exists():  # no temporary file left beside it
+            assert [p.name for p in target.parent.iterdir()] in ([], [target.name])
