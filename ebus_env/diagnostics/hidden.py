@@ -21,6 +21,7 @@ import numpy as np
 from ebus_env import paths
 from ebus_env.config import Service, load_bus
 from ebus_env.cycles import load_cycle, service_day
+from ebus_env.errors import ConfigError
 from ebus_env.profile import Profile
 from ebus_env.routes import load_route
 
@@ -101,7 +102,14 @@ def hidden_effect(c: Case):
 
     if c.effect is None:
         return None
-    return resolve_effect(str(paths.checkout() / c.effect) if ".py:" in c.effect else c.effect)
+    if ".py:" not in c.effect:
+        return resolve_effect(c.effect)
+    root = paths.checkout()
+    if root is None:
+        raise ConfigError(f"The case '{c.name}' hides {c.effect}, a file of the source "
+                          "checkout, which an installed package does not hold. Fix: run it "
+                          "from a clone of the repository.")
+    return resolve_effect(str(root / c.effect))
 
 
 def true_bus(c: Case):
