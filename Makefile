@@ -7,6 +7,8 @@
 PYTHON ?= python3
 VENV   := .venv
 PIP    := $(VENV)/bin/pip install -c constraints.txt
+# the same constraints for pip's isolated build environments (pip reads PIP_CONSTRAINT there too)
+export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
 STAMP  := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -27,6 +28,37 @@ SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", help="Override a parameter: effect.param=value (repeatable)")]
 OverlayOpt = Annotated[list[Path] | None, typer.Option(
     "--overlay", help="Bus-config overlay to merge, e.g. a calibration result")]
+
+
+@dataclass(frozen=True)
+class BusChoice:
+    """The bus of a command: ``--bus``, ``--with``, ``--without``, ``--overlay``."""
+
+    name: str
+    with_: list[str] | None = None
+    without: list[str] | None = None
+    overlays: list[Path] | None = None
+
+    def load(self):
+        """The :class:`~ebus_env.config.BusConfig`, effects added and removed, overlays merged."""
+        from ebus_env.config import load_bus
+
+        return load_bus(self.name, with_=_split(self.with_), without=_split(self.without),
+                        overlays=self.overlays or [])
+
+    def files(self, bus) -> list[Path]:
+        """The files this choice reads: the bus config, the overlays, the effect files."""
+        return _inputs([bus.path], self.overlays, effects=self.with_)
+
+
+@dataclass(frozen=True)
+class LogHandling:
+    """How measured logs are read: ``--columns``, ``--gaps``, ``--fill``, ``--no-unit-check``."""
+
+    columns: str | None = None
+    gaps: str = "error"
+    fill: str = "error"
+    check_units: bool = True
 
 
 def _console():
@@ -54,34 +86,105 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def _load_logs(paths, model, params, columns, gaps, fill, check_units, console, notes=None):
+def _load_logs(paths, model, params, handling: LogHandling, console, notes=None):
     """Profiles of measured logs, with the loader's report printed (and its changes appended
     to ``notes``)."""
+    from rich.markup import escape
+
     from ebus_env.io.measured import load_log
 
     vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
         if model.has_effect("vehicle_body") else None
     profiles = []
     for path in paths:
-        log = load_log(path, model.dt_s, columns=columns, gaps=gaps, fill=fill,
-                       check_units=check_units, max_speed_kmh=vmax, max_accel_mps2=4.0)
+        log = load_log(path, model.dt_s, columns=handling.columns, gaps=handling.gaps,
+                       fill=handling.fill, check_units=handling.check_units, max_speed_kmh=vmax,
+                       max_accel_mps2=4.0)
         profiles += log.profiles
         if notes is not None:
             notes += log.report.changes
         for line in log.report.changes:
-            console.print(f"[dim]loader ({Path(path).name}):[/] {line}", highlight=False)
+            console.print(f"[dim]loader ({Path(path).name}):[/] {escape(line)}", highlight=False,
+                          soft_wrap=True)
         for line in log.report.warnings + log.report.ignored:
-            console.print(f"[yellow]loader ({Path(path).name}):[/] {line}", highlight=False)
+            console.print(f"[yellow]loader ({Path(path).name}):[/] {escape(line)}",
+                          highlight=False,
+                          soft_wrap=True)
     return profiles
 
 
+def _inputs(*groups, effects=()) -> list[Path]:
+    """The files a command reads: the paths given, and the file of each ``file.py:Name``."""
+    files = [Path(item.split(":", 1)[0]) for item in _split(list(effects or []))
+             if ".py" in item.split(":", 1)[0]]
+    return [Path(p) for group in groups for p in group or [] if p is not None] + files
+
+
+def _config_file(config: str | None) -> Path | None:
+    """The calibration config file that ``--config`` names (None for the defaults)."""
+    from ebus_env.config import find_config
+
+    return None if config is None else find_config(config, kind="calibration")
+
+
+def _check_outputs(outputs, inputs: list[Path]) -> None:
+    """Check each ``(path, option, suffixes)`` output given (see :func:`check_output`)."""
+    from ebus_env.outputs import check_output
+
+    for path, option, suffixes in outputs:
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
+
+
+def _write(path: Path, writer) -> None:
+    """Call ``writer(tmp)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    from ebus_env.outputs import atomic
+
+    with atomic(path) as tmp:
+        writer(tmp)
+
+
 def _run(fn):
-    """Run a command body, printing user errors without a traceback."""
-    try:
-        return fn()
-    except EbusError as exc:
-        _console().print(f"[bold red]error:[/] {exc}", highlight=False)
-        raise typer.Exit(2) from None
+    """Run a command body, printing user errors without a traceback and input warnings
+    (:class:`~ebus_env.errors.InputWarning`) as they come."""
+    import warnings
+
+    from rich.markup import escape
+
+    from ebus_env.errors import InputWarning
+
+    console = _console()
+    original = warnings.showwarning
+    shown: set = set()
+
+    def show(message, category, *args, **kwargs):
+        if issubclass(category, InputWarning):
+            key = getattr(message, "key", str(message))
+            if key not in shown:  # a value checked where it is read and where it is used
+                shown.add(key)
+                console.print(f"[yellow]warning:[/] {escape(str(message))}", highlight=False,
+                              soft_wrap=True)
+        else:
+            original(message, category, *args, **kwargs)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        warnings.showwarning = show
+        try:
+            return fn()
+        except EbusError as exc:
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
+                          soft_wrap=True)
+            raise typer.Exit(2) from None
+        except Exception as exc:  # a user's effect numba cannot compile: say which and why
+            from ebus_env.effects.compile_errors import explain
+
+            explained = explain(exc)
+            if explained is None:
+                raise
+            console.print(f"[bold red]error:[/] {escape(str(explained))}", highlight=False,
+                          soft_wrap=True)
+            raise typer.Exit(2) from None
 
 
 @app.command()
@@ -89,7 +192,8 @@ def simulate(
     bus: BusOpt = "12m",
     cycle: Annotated[str | None, typer.Option(help="Cycle name (see `ebus cycles`) or CSV")] = None,
     measured: Annotated[Path | None, typer.Option(help="Measured log (CSV/Parquet) to replay")] = None,
-    hours: Annotated[float, typer.Option(help="Length of the cycle day [h]")] = 13.5,
+    hours: Annotated[float | None, typer.Option(
+        help="Length of the cycle day [h] (default 13.5)")] = None,
     mean_speed_kmh: Annotated[float | None, typer.Option(
         help="Scale the cycle to this mean speed [km/h]")] = None,
     ambient_degc: Annotated[float | None, typer.Option(help="Ambient for cycle days [degC]")] = None,
@@ -115,39 +219,58 @@ def simulate(
     = None,
 ):
     """Run a bus through a cycle day or a measured log and print the energy table."""
-    _run(lambda: _simulate(bus, cycle, measured, hours, mean_speed_kmh, ambient_degc,
-                           soc_start_pct, load, with_, without, set_, overlay, columns, gaps,
-                           fill, not no_unit_check, dt_s, out, plot, json_path))
+    _run(lambda: _simulate(
+        BusChoice(bus, with_, without, overlay), LogHandling(columns, gaps, fill, not no_unit_check),
+        cycle=cycle, measured=measured, hours=hours, mean_speed_kmh=mean_speed_kmh,
+        ambient_degc=ambient_degc, soc_start_pct=soc_start_pct, load=load, set_=set_, dt_s=dt_s,
+        out=out, plot=plot, json_path=json_path))
 
 
 def _load_frac(load: str) -> float:
     from ebus_env.config import LOAD_CATEGORIES
     from ebus_env.errors import ConfigError
+    from ebus_env.inputs import check
 
     if load in LOAD_CATEGORIES:
         return LOAD_CATEGORIES[load]
     try:
-        return float(load)
+        value = float(load)
     except ValueError:
         raise ConfigError(f"--load: '{load}' is none of {', '.join(LOAD_CATEGORIES)} "
                           "and not a fraction.") from None
+    check("load_frac", value, "--load")
+    return value
 
 
-def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, soc_start_pct,
-              load, with_, without, set_, overlay, columns, gaps, fill, check_units, dt_s, out,
-              plot, json_path):
-    from ebus_env.config import load_bus
+def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hours,
+              mean_speed_kmh, ambient_degc, soc_start_pct, load, set_, dt_s, out, plot,
+              json_path):
     from ebus_env.errors import ConfigError
+    from ebus_env.inputs import check
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES
     from ebus_env.report import summary_tables, write_json
     from ebus_env.simulate import run_profiles
 
     console = _console()
+    if soc_start_pct is not None:
+        check("soc_start_pct", soc_start_pct, "--soc-start-pct")
     if (cycle is None) == (measured is None):
         if cycle is None and measured is None:
             cycle = "sort2"
         else:
             raise ConfigError("Give either --cycle or --measured, not both.")
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    day_options = {"--hours": hours, "--mean-speed-kmh": mean_speed_kmh,
+                   "--ambient-degc": ambient_degc}
+    given = [option for option, value in day_options.items() if value is not None]
+    if measured is not None and given:
+        raise ConfigError(f"{', '.join(given)} shape(s) a cycle day; a measured log keeps its "
+                          "own length, speeds and ambient. Fix: drop them, or use --cycle.")
+    hours = 13.5 if hours is None else hours
+    bus = choice.load()
+    cycle_file = Path(cycle) if cycle is not None and Path(cycle).is_file() else None
+    _check_outputs([(out, "--out", TABLE_SUFFIXES), (plot, "--plot", PLOT_SUFFIXES),
+                    (json_path, "--json", JSON_SUFFIXES)],
+                   choice.files(bus) + _inputs([measured, cycle_file]))
     t0 = time.perf_counter()
     model = bus.build(dt_s)
     overrides = _overrides(set_)
@@ -157,7 +280,7 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
     record = out is not None or plot is not None or measured is not None
     compile_s = model.compile(record)
     if measured is not None:
-        profiles = _load_logs([measured], model, params, columns, gaps, fill, check_units, console)
+        profiles = _load_logs([measured], model, params, handling, console)
     else:
         from ebus_env.cycles import service_day
 
@@ -169,6 +292,10 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
         soc_start = bus.service.soc_start_pct / 100.0
     run = run_profiles(model, profiles, params, soc_start, record)
     summary = run.summary
+    if soc_start is None and "soc_frac" not in profiles[0].measured:
+        console.print(f"[yellow]note:[/] the log has no SoC: the battery started at "
+                      f"{summary['soc_start_pct']:.1f} %, the model's initial state; set it "
+                      "with --soc-start-pct", highlight=False, soft_wrap=True)
     summary["compile_or_load_s"] = compile_s
     title = f"{bus.name} on {run.label}"
     figures, breakdown = summary_tables(summary, title)
@@ -178,19 +305,19 @@ def _simulate(bus_name, cycle, measured, hours, mean_speed_kmh, ambient_degc, so
                   f" (compile/cache {compile_s:.2f} s); simulated in "
                   f"{1e3 * summary['wall_time_s']:.1f} ms[/]", highlight=False)
     if json_path:
-        write_json(summary, json_path)
+        _write(json_path, lambda tmp: write_json(summary, tmp))
         console.print(f"summary -> {json_path}")
     if out:
         frame = run.trace_frame()
-        if out.suffix == ".csv":
-            frame.to_csv(out, index=False)
+        if out.suffix.lower() == ".csv":
+            _write(out, lambda tmp: frame.to_csv(tmp, index=False))
         else:
-            frame.to_parquet(out, index=False)
+            _write(out, lambda tmp: frame.to_parquet(tmp, index=False))
         console.print(f"trace ({len(frame)} rows x {frame.shape[1]} signals) -> {out}")
     if plot:
         from ebus_env.plotting import plot_trace
 
-        plot_trace(run.results[0], plot)
+        _write(plot, lambda tmp: plot_trace(run.results[0], tmp))
         if len(run.results) > 1:
             console.print("[yellow]plot shows the first segment only[/]")
         console.print(f"plot -> {plot}")
@@ -258,9 +385,12 @@ def calibrate(
             from ebus_env.errors import ConfigError
 
             raise ConfigError("Give the measured log(s) to calibrate on, or --fleet FOLDER.")
-        _calibrate(logs, bus, params, fix, range_, windowed, validate, seed, population,
-                   iterations, categorical_load, config, with_, without, overlay, columns, gaps,
-                   fill, not no_unit_check, sparse, sparse_cycle, out, json_path, plot, history)
+        _calibrate(
+            logs, BusChoice(bus, with_, without, overlay),
+            LogHandling(columns, gaps, fill, not no_unit_check), params=params, fix=fix,
+            range_=range_, windowed=windowed, validate=validate, seed=seed, population=population,
+            iterations=iterations, categorical_load=categorical_load, config=config, sparse=sparse,
+            sparse_cycle=sparse_cycle, out=out, json_path=json_path, plot=plot, history=history)
 
     _run(body)
 
@@ -275,25 +405,36 @@ def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
             low, high = (float(x) for x in value.split(":"))
         except ValueError:
             raise ConfigError(f"--range needs effect.param=low:high, got '{item}'.") from None
+        if not low < high:  # NaN fails too
+            raise ConfigError(f"--range {item}: low must be below high.")
         out[name.strip()] = (low, high)
     return out
 
 
-def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, population,
-               iterations, categorical_load, config, with_, without, overlay, columns, gaps,
-               fill, check_units, sparse, sparse_cycle, out, json_path, plot, history):
+def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, range_, windowed,
+               validate, seed, population, iterations, categorical_load, config, sparse,
+               sparse_cycle, out, json_path, plot, history):
     from dataclasses import replace
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ebus_env.calibration import calibrate as run_calibration
     from ebus_env.calibration.settings import load_calibration_config
-    from ebus_env.config import load_bus
+    from ebus_env.inputs import check
+    from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES
     from ebus_env.report import calibration_tables, write_json
 
     console = _console()
+    for name, value in (("population", population), ("iterations", iterations)):
+        if value is not None:
+            check(name, value, f"--{name}")
     cfg = load_calibration_config(config)
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    bus = choice.load()
+    plots = [] if plot is None else [plot, plot.with_name(plot.stem + "_history" + plot.suffix),
+                                     plot.with_name(plot.stem + "_determinacy" + plot.suffix)]
+    _check_outputs([(out, "--out", YAML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES),
+                    (history, "--history", (".csv",)), *((p, "--plot", PLOT_SUFFIXES) for p in plots)],
+                   choice.files(bus) + _inputs(logs, validate, [_config_file(config)]))
     model = bus.build()
     fixed = {**cfg.fixed, **_overrides(fix)}
     base = model.param_vector(fixed)
@@ -301,7 +442,7 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         from ebus_env.io.sparse import load_sparse_log
 
         vmax = base[model.param_index("vehicle_body.max_speed_kmh")]
-        loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=columns,
+        loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=handling.columns,
                                   max_speed_kmh=vmax) for p in [*logs, *(validate or [])]]
         for path, log in zip([*logs, *(validate or [])], loaded, strict=True):
             for line in log.report.changes:
@@ -309,12 +450,12 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
         profiles = [log.profile for log in loaded[:len(logs)]]
         check = [log.profile for log in loaded[len(logs):]]
     else:
-        profiles = _load_logs(logs, model, base, columns, gaps, fill, check_units, console)
-        check = _load_logs(validate or [], model, base, columns, gaps, fill, check_units,
-                           console)
+        profiles = _load_logs(logs, model, base, handling, console)
+        check = _load_logs(validate or [], model, base, handling, console)
     free = _split([params]) if params else cfg.params
-    settings = replace(cfg.isopt, seed=seed, **({"population": population} if population else {}),
-                       **({"iterations": iterations} if iterations else {}))
+    settings = replace(cfg.isopt, seed=seed,
+                       **({} if population is None else {"population": population}),
+                       **({} if iterations is None else {"iterations": iterations}))
     model.compile(sample=True)
     total = settings.iterations if not windowed else None
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
@@ -346,26 +487,26 @@ def _calibrate(logs, bus_name, params, fix, range_, windowed, validate, seed, po
     if result.interrupted:
         console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
     if out:
-        result.write_overlay(out)
-        console.print(f"overlay -> {out}  (ebus simulate --bus {bus_name} --overlay {out})")
+        _write(out, result.write_overlay)
+        console.print(f"overlay -> {out}  (ebus simulate --bus {choice.name} --overlay {out})")
     if json_path:
-        write_json(result.to_json(), json_path)
+        _write(json_path, lambda tmp: write_json(result.to_json(), tmp))
         console.print(f"results -> {json_path}")
     if plot:
-        result.plot(plot)
-        history_png = plot.with_name(plot.stem + "_history" + plot.suffix)
-        result.plot_history(history_png)
-        written = [plot, history_png]
+        _write(plots[0], result.plot)
+        _write(plots[1], result.plot_history)
+        written = plots[:2]
         if result.determinacy:
-            written.append(plot.with_name(plot.stem + "_determinacy" + plot.suffix))
-            result.plot_determinacy(written[-1])
+            _write(plots[2], result.plot_determinacy)
+            written = plots
         console.print(f"plots -> {', '.join(map(str, written))}")
     if history:
         import pandas as pd
 
-        pd.DataFrame({"iteration": range(len(result.history.best_cost)),
-                      "evaluations": result.history.evaluations,
-                      "best_cost": result.history.best_cost}).to_csv(history, index=False)
+        frame = pd.DataFrame({"iteration": range(len(result.history.best_cost)),
+                              "evaluations": result.history.evaluations,
+                              "best_cost": result.history.best_cost})
+        _write(history, lambda tmp: frame.to_csv(tmp, index=False))
         console.print(f"history -> {history}")
 
 
@@ -395,31 +536,51 @@ def diagnose(
     gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+    set_: SetOpt = None,
 ):
     """Where the model fails against measurements, and which effect is missing.
 
     Shows the error before and after adding each effect (--add), re-calibrated each time."""
-    _run(lambda: _diagnose(logs, bus, with_, without, overlay, calibrate, add, html,
-                           json_path, window_s, config, seed, columns, gaps, fill,
-                           not no_unit_check))
+    _run(lambda: _diagnose(
+        logs, BusChoice(bus, with_, without, overlay),
+        LogHandling(columns, gaps, fill, not no_unit_check), calibrate=calibrate, add=add,
+        html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_))
 
 
-def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, json_path,
-              window_s, config, seed, columns, gaps, fill, check_units):
+def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add, html, json_path,
+              window_s, config, seed, set_):
     from dataclasses import replace
 
     from ebus_env.calibration.settings import load_calibration_config
-    from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.report import console_tables
+    from ebus_env.errors import LogError
+    from ebus_env.inputs import check
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES
 
     console = _console()
+    if window_s is not None:
+        check("window_s", window_s, "--window-s")
     cfg = load_calibration_config(config)
-    bus = load_bus(bus_name, with_=_split(with_), without=_split(without), overlays=overlay or [])
+    bus = choice.load()
+    overrides = _overrides(set_)
+    if overrides:  # as an overlay, so that every model the diagnosis builds has them
+        params: dict = {}
+        for key, value in overrides.items():
+            effect_name, param = key.split(".", 1)
+            params.setdefault(effect_name, {})[param] = value
+        bus = bus.overlay({"params": params}, "--set")
+    _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
+                   choice.files(bus) + _inputs(logs, [_config_file(config)], effects=add))
     model = bus.build()
+    model.param_vector(overrides)  # unknown names and values outside bounds fail here
     notes: list[str] = []
-    profiles = _load_logs(logs, model, model.params, columns, gaps, fill, check_units, console,
-                          notes)
+    profiles = _load_logs(logs, model, model.params, handling, console, notes)
+    without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
+    if without_soc:
+        raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "
+                       f"{', '.join(without_soc)} have none", fix="give logs with a soc_pct "
+                       "(or soc_frac) column, or map it with --columns")
     with console.status("diagnosing") as status:
         result = run_diagnosis(bus, profiles, calibrate=calibrate, add=_split(add),
                                window_s=window_s, settings=replace(cfg.isopt, seed=seed),
@@ -431,10 +592,10 @@ def _diagnose(logs, bus_name, with_, without, overlay, calibrate, add, html, jso
     console.print(f"[{style}]{result.sentence}[/]", highlight=False)
     console.print(f"[dim]{result.timings['total_s']:.1f} s[/]", highlight=False)
     if html:
-        result.write_html(html)
+        _write(html, result.write_html)
         console.print(f"report -> {html}")
     if json_path:
-        result.write_json(json_path)
+        _write(json_path, result.write_json)
         console.print(f"results -> {json_path}")
 
 
@@ -575,7 +736,9 @@ def demo(
 
     def body():
         from ebus_env.demo import run_demo
+        from ebus_env.outputs import check_folder
 
+        check_folder(out, "--out")
         path = run_demo(out, console=_console())
         _console().print(f"[bold green]report ->[/] {path}")
 

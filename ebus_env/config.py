@@ -28,11 +28,10 @@ from pathlib import Path
 
 import yaml
 
+from ebus_env import paths
 from ebus_env.effects.base import Effect, get_effect, registered_effects
 from ebus_env.errors import ConfigError, unknown_name
-
-ROOT = Path(__file__).resolve().parent.parent
-"""Repository root: ``configs/`` and ``data/`` live here."""
+from ebus_env.inputs import RANGES, check
 
 
 @dataclass
@@ -77,6 +76,7 @@ class BusConfig:
         """Compose the model (its kernel compiles, or loads from cache, on first run)."""
         from ebus_env.model.model import build_model
 
+        check("dt_s", dt_s, "dt_s")
         return build_model(self.slots, self.contributions, self.params, self.tables,
                            self.bounds, dt_s=dt_s, name=self.name)
 
@@ -124,16 +124,19 @@ class BusConfig:
                 setattr(new, key, str(data[key]))
         new.slots.update(_mapping(data.get("slots"), "slots", source))
         if "contributions" in data:
-            new.contributions = list(data["contributions"] or [])
+            new.contributions = _names(data["contributions"], "contributions", source)
         for key in ("params", "tables", "bounds"):
             for effect_name, values in _mapping(data.get(key), key, source).items():
                 new_values = _mapping(values, f"{key}.{effect_name}", source)
+                for name, value in new_values.items():
+                    _check_value(key, f"{effect_name}.{name}", value, source)
                 getattr(new, key).setdefault(effect_name, {}).update(new_values)
         if "service" in data:
             known = {f.name for f in fields(Service)}
             service = _mapping(data["service"], "service", source)
             _check_keys(service, known, f"{source}: service")
             new.service = Service(**{**asdict(new.service), **service})
+            check_service(new.service, source)
         for item in data.get("with") or []:
             new = new.with_effect(_relative_to(item, source))
         for item in data.get("without") or []:
@@ -157,6 +160,70 @@ def _relative_to(item: str, source: str) -> str:
     return item
 
 
+def _is_number(value) -> bool:
+    """A YAML number, or text PyYAML leaves unread that is one (``1.0e6``: YAML 1.1 wants a
+    sign in the exponent)."""
+    if isinstance(value, str):
+        try:
+            float(value)
+        except ValueError:
+            return False
+        return True
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_value(key: str, qualified: str, value, source: str) -> None:
+    """A parameter value is a number and a bound a [low, high] pair of numbers (a unit or a
+    list there is an error naming the file and key, never a bare ``float()`` failure)."""
+    if key == "params" and not _is_number(value):
+        raise ConfigError(f"{source}: params {qualified} = {value!r} is not a number. Fix: "
+                          "give the value alone in the parameter's unit (see `ebus effects`), "
+                          "e.g. 13000 for a mass of 13 t in kg.")
+    if key == "bounds" and not (isinstance(value, (list, tuple)) and len(value) == 2
+                                and all(_is_number(v) for v in value)):
+        raise ConfigError(f"{source}: bounds {qualified} = {value!r} is not a [low, high] pair "
+                          "of numbers.")
+    if key == "tables" and not isinstance(value, (str, list, dict)):
+        raise ConfigError(f"{source}: tables {qualified} = {value!r} must name a table or "
+                          "give its values (a list, or x and y).")
+
+
+def _names(value, what: str, source: str) -> list[str]:
+    if value is None:
+        return []
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{source}: '{what}' must be a list of effect names, got {value!r}.")
+    return list(value)
+
+
+_SERVICE_RANGES = {"soc_start_pct": "soc_start_pct", "ambient_degc": "ambient_degc",
+                   "start_time_h": "start_time_h", "layover_every_min": "layover_every_min",
+                   "layover_min": "layover_min", "layover_charger_kw": "charger_kw",
+                   "depot_charger_kw": "charger_kw"}
+
+
+def check_service(service: Service, source: str) -> None:
+    """Every service value in its declared range (:mod:`ebus_env.inputs`)."""
+    for key, name in _SERVICE_RANGES.items():
+        value = getattr(service, key)
+        no_layovers = key == "layover_every_min" and service.layover_min == 0 and value == 0
+        if value is None and getattr(Service, key) is not None:
+            raise ConfigError(f"{source}: service.{key} is empty; give a number in "
+                              f"{RANGES[name].text()}.")
+        if value is not None and not no_layovers:
+            check(name, value, f"{source}: service.{key}")
+    if not isinstance(service.charge_at_layovers, bool):
+        raise ConfigError(f"{source}: service.charge_at_layovers = "
+                          f"{service.charge_at_layovers!r} must be true or false.")
+    profile = service.passenger_profile
+    if profile is not None:
+        if not isinstance(profile, dict) or not profile or not all(
+                _is_number(h) and 0 <= h <= 24 and _is_number(n) and n >= 0
+                for h, n in profile.items()):
+            raise ConfigError(f"{source}: service.passenger_profile must map hours of the day "
+                              f"(0-24) to passengers (>= 0), got {profile!r}.")
+
+
 def _mapping(value, what: str, source: str) -> dict:
     if value is None:
         return {}
@@ -171,31 +238,55 @@ def _check_keys(data: dict, allowed: set, source: str) -> None:
             raise unknown_name(f"key in {source}", str(key), allowed)
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML loader that refuses a key given twice in one mapping (the last would win)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"the key '{key}' is given twice in one mapping; keep one",
+                    key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """One line: the problem and where (``line 12, column 5``)."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return problem + (f" at line {mark.line + 1}, column {mark.column + 1}" if mark else "")
+
+
 def read_yaml(path: Path) -> dict:
+    """A YAML mapping from a file; a missing file, bad YAML or a duplicated key is a
+    :class:`ConfigError` naming the file (and line)."""
     try:
-        data = yaml.safe_load(Path(path).read_text())
+        data = yaml.load(Path(path).read_text(), Loader=_UniqueKeyLoader)  # a SafeLoader
     except FileNotFoundError:
         raise ConfigError(f"Config file {path} does not exist.") from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path} is not valid YAML: {exc}") from None
+        raise ConfigError(f"{path} is not valid YAML: {_yaml_problem(exc)}.") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path} must hold a mapping at the top level.")
     return data
 
 
 def find_config(name: str | Path, kind: str = "bus") -> Path:
-    """A config path: as given, or ``configs/<kind>/<name>.yaml`` here or in the repository."""
+    """A config path: as given, or ``configs/<kind>/<name>.yaml`` in the working folder or
+    among the shipped configs."""
     path = Path(name)
     if path.suffix in (".yaml", ".yml"):
         if path.exists():
             return path
         raise ConfigError(f"Config file {path} does not exist.")
-    for base in (Path.cwd() / "configs" / kind, ROOT / "configs" / kind):
+    for base in (Path.cwd() / "configs" / kind, paths.configs(kind)):
         candidate = base / f"{name}.yaml"
         if candidate.exists():
             return candidate
-    available = sorted(p.stem for p in (ROOT / "configs" / kind).glob("*.yaml"))
-    raise unknown_name(f"{kind} config", str(name), available)
+    raise unknown_name(f"{kind} config", str(name), paths.config_names(kind))
 
 
 def load_bus(name: str | Path, with_=(), without=(), overlays=()) -> BusConfig:
@@ -205,6 +296,11 @@ def load_bus(name: str | Path, with_=(), without=(), overlays=()) -> BusConfig:
     data = read_yaml(path)
     _check_keys(data, _TOP_KEYS, str(path))
     bus = BusConfig(name=str(data.get("name", path.stem)), path=path).overlay(data, str(path))
+    if not bus.contributions:
+        raise ConfigError(f"{path} lists no contributions: the bus would drive without drag, "
+                          "rolling resistance, grade or auxiliaries. Fix: list them, e.g. "
+                          "contributions: [aero_drag, rolling_resistance, road_grade, "
+                          "passenger_mass, auxiliaries, cabin_hvac] as in the shipped 12m.yaml.")
     for overlay in overlays:
         if isinstance(overlay, dict):
             bus = bus.overlay(overlay)

@@ -18,12 +18,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ebus_env.config import ROOT, Service
+from ebus_env import paths
+from ebus_env.config import Service
 from ebus_env.errors import ConfigError, unknown_name
+from ebus_env.inputs import RANGES, check
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
-CYCLE_DIR = ROOT / "data" / "cycles"
+CYCLE_DIR = paths.data("cycles")
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,21 @@ def _resample_note(cycle: Cycle, dt_s: float) -> list[str]:
     return [f"{cycle.name}: resampled from {native:g} s to {dt_s:g} s by {how}"]
 
 
+def _read_cycle(path) -> np.ndarray:
+    """The cycle table (numpy: no pandas import for a command-line run); a missing file or
+    column is a :class:`ConfigError`."""
+    try:
+        frame = np.genfromtxt(path, delimiter=",", names=True)
+    except OSError:
+        raise ConfigError(f"Cycle file {path} does not exist.") from None
+    names = frame.dtype.names or ()
+    missing = [c for c in ("time_s", "speed_kmh") if c not in names]
+    if missing or frame.ndim != 1 or len(frame) < 2:
+        raise ConfigError(f"Cycle {path} needs at least two rows and the columns time_s, "
+                          f"speed_kmh (optional grade_frac); it has {', '.join(names) or 'none'}.")
+    return frame
+
+
 def load_cycle(name: str) -> Cycle:
     """A shipped cycle by name (see :data:`CYCLES`), or a CSV path with ``time_s,speed_kmh``
     (optional ``grade_frac``)."""
@@ -153,7 +170,7 @@ def load_cycle(name: str) -> Cycle:
             raise unknown_name("cycle", name, CYCLES)
         info = CYCLES[name]
         path = CYCLE_DIR / info.file
-    frame = np.genfromtxt(path, delimiter=",", names=True)  # numpy: no pandas import for a CLI run
+    frame = _read_cycle(path)
     t = np.asarray(frame["time_s"], dtype=float)
     v = np.asarray(frame["speed_kmh"], dtype=float)
     notes = ()
@@ -167,6 +184,12 @@ def load_cycle(name: str) -> Cycle:
             raise ConfigError(f"Cycle {path}: column '{label}' has missing or non-numeric values.")
     if np.any(np.diff(t) <= 0):
         raise ConfigError(f"Cycle {path}: time_s must increase strictly.")
+    speed = RANGES["log_speed_kmh"]
+    if np.any(v < speed.low) or np.any(v > speed.high):
+        raise ConfigError(f"Cycle {path}: speed_kmh outside [{speed.low:g}, {speed.high:g}] "
+                          f"(e.g. {v[(v < speed.low) | (v > speed.high)][0]:g}).")
+    if g is not None and np.any(np.abs(g) > 0.3):
+        raise ConfigError(f"Cycle {path}: grade_frac beyond +-0.3 (a fraction: 0.05 for 5 %).")
     if g is not None and len(g) != len(t):
         g = np.concatenate([[g[0]], g])
     return Cycle(name, t, v, g, info.description, notes)
@@ -183,9 +206,15 @@ def service_day(cycle: Cycle | str, hours: float, dt_s: float = 0.1,
     A ``passenger_profile`` ({hour of day: passengers}) sets the passengers over the day.
     """
     service = service or Service()
+    check("hours", hours, "hours")
+    check("dt_s", dt_s, "dt_s")
+    check("steps", hours * 3600.0 / dt_s, f"{hours:g} h at dt {dt_s:g} s: steps")
+    if ambient_degc is not None:
+        check("ambient_degc", ambient_degc, "ambient_degc")
     if isinstance(cycle, str):
         cycle = load_cycle(cycle)
     if mean_speed_kmh is not None:
+        check("mean_speed_kmh", mean_speed_kmh, "mean_speed_kmh")
         cycle = cycle.scaled(mean_speed_kmh)
     lap = cycle.lap(dt_s)
     n_lap = len(lap["speed_ref_mps"])

@@ -12,14 +12,15 @@ import base64
 import io
 from pathlib import Path
 
-from ebus_env.config import ROOT, load_bus
+from ebus_env import paths
+from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
 from ebus_env.report import BREAKDOWN_LABELS, FIGURES, write_json
 from ebus_env.simulate import run_profiles
 
-BMW_DIR = ROOT / "data" / "measured" / "bmw_i3_tum"
+BMW_DIR = paths.data("measured", "bmw_i3_tum")
 TRIPS = ("B16", "B03", "B02")
 
 

@@ -21,6 +21,24 @@ class CompositionError(EbusError, ValueError):
     """The chosen effects do not form a valid model."""
 
 
+class EnvError(EbusError, RuntimeError):
+    """An environment is used out of order (e.g. ``step()`` after the episode ended)."""
+
+
+class ActionError(EbusError, ValueError):
+    """An env action of the wrong shape, or not a finite number in [-1, 1]."""
+
+
+class InputWarning(UserWarning):
+    """An input inside its accepted range but outside the usual one (see ebus_env.inputs):
+    the run goes on, and the command line prints the warning (once per input and value:
+    ``key``)."""
+
+    def __init__(self, line: str, key: tuple | None = None):
+        super().__init__(line)
+        self.key = key or (line,)
+
+
 class LogError(EbusError, ValueError):
     """A measured log cannot be used as it is.
 

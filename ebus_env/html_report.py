@@ -13,7 +13,7 @@ import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ebus_env.io.atomic import write_text_atomic
+from ebus_env.outputs import write_text
 
 
 @dataclass
@@ -72,4 +72,4 @@ def render(title: str, sections: list[Section], *, ran: str = "", settings: dict
 
 def write_report(path: str | Path, title: str, sections: list[Section], **header) -> Path:
     """Render the report (see :func:`render` for the header fields) and write it atomically."""
-    return write_text_atomic(path, render(title, sections, **header))
+    return write_text(path, render(title, sections, **header))

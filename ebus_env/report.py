@@ -6,6 +6,8 @@ import json
 import math
 from pathlib import Path
 
+from ebus_env.outputs import write_text
+
 BREAKDOWN_LABELS = {
     "traction": "traction (motor at wheels)",
     "regen_recovered": "inertia recovered by regen",
@@ -85,7 +87,7 @@ def _clean(value):
 
 def write_json(data: dict, path: str | Path) -> None:
     """JSON with NaN/inf written as null."""
-    Path(path).write_text(json.dumps(_clean(data), indent=2) + "\n")
+    write_text(path, json.dumps(_clean(data), indent=2) + "\n")
 
 
 FIT_ROWS = [

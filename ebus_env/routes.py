@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.cycles import Cycle
-from ebus_env.errors import unknown_name
+from ebus_env.errors import ConfigError, unknown_name
 from ebus_env.grade import grade_from_altitude
 
-ROUTE_DIR = ROOT / "data" / "routes" / "king_county"
+ROUTE_DIR = paths.data("routes", "king_county")
 ROUTES = {
     "kc45_out": "rt45_sh31045010_d0.csv", "kc45_back": "rt45_sh31045010_d1.csv",
     "kc7_out": "rt7_sh10007006_d0.csv", "kc7_back": "rt7_sh10007006_d1.csv",
@@ -104,7 +104,15 @@ def load_route(name: str | Path) -> Route:
         path = Path(name)
     else:
         raise unknown_name("route", str(name), ROUTES)
-    frame = pd.read_csv(path)
+    try:
+        frame = pd.read_csv(path)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise ConfigError(f"Route {path} cannot be read: {exc}") from None
+    columns = ("distance_m", "elevation_m", "speed_limit_kmh", "stop_id_or_-1")
+    missing = [c for c in columns if c not in frame.columns]
+    if missing or len(frame) < 2:
+        raise ConfigError(f"Route {path} needs at least two rows and the columns "
+                          f"{', '.join(columns)}; missing: {', '.join(missing) or 'rows'}.")
     stops = frame["distance_m"][frame["stop_id_or_-1"] != -1].to_numpy(float)
     return Route(Path(path).stem if str(name) not in ROUTES else str(name),
                  frame["distance_m"].to_numpy(float), frame["elevation_m"].to_numpy(float),

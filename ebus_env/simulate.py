@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ebus_env.inputs import check
+
 _ADDITIVE = ("distance_km", "duration_h", "battery_energy_kwh", "consumed_energy_kwh",
              "grid_energy_kwh", "charging_time_h", "wall_time_s", "battery_shortfall_kwh")
 
@@ -67,7 +69,10 @@ def combine(summaries: list[dict], results: list) -> dict:
 
 
 def run_profiles(model, profiles, params=None, soc_start=None, record=True) -> Run:
-    """Simulate each profile in turn (each from its own measured SoC unless ``soc_start``)."""
+    """Simulate each profile in turn (each from its own measured SoC unless ``soc_start``, a
+    fraction 0-1)."""
+    if soc_start is not None:
+        check("soc_start_pct", 100.0 * soc_start, "soc_start (as percent)")
     results = [model.simulate(p, params, soc_start if i == 0 else None, record=record)
                for i, p in enumerate(profiles)]
     return Run(results, combine([r.summary() for r in results], results))

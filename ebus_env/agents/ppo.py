@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.envs.ebus import config_keys
 from ebus_env.errors import ConfigError
 
-DEFAULT_AGENT = ROOT / "trained" / "ppo_sort2_day"
+DEFAULT_AGENT = paths.trained("ppo_sort2_day")
 """The shipped agent (``ppo:default``): PPO trained on ``sort2_day`` (see its README)."""
 
 
@@ -48,7 +48,7 @@ class PPOConfig:
     @classmethod
     def load(cls, source: str | Path | None = "ppo", **overrides) -> PPOConfig:
         """From a name in ``configs/agents`` or a YAML path, with overrides."""
-        data = config_keys(cls, source or "ppo", overrides, "PPO", ROOT / "configs" / "agents")
+        data = config_keys(cls, source or "ppo", overrides, "PPO", paths.configs("agents"))
         data["net_arch"] = tuple(data.get("net_arch", cls.net_arch))
         return cls(**data)
 

@@ -13,18 +13,19 @@ quantised to 0.1 %, no battery current or voltage. The baseline the diagnosis st
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from ebus_env.config import ROOT, Service, load_bus
+from ebus_env import paths
+from ebus_env.config import Service, load_bus
 from ebus_env.cycles import load_cycle, service_day
+from ebus_env.errors import ConfigError
 from ebus_env.profile import Profile
 from ebus_env.routes import load_route
 
-OUT_DIR = ROOT / "data" / "measured" / "hidden"
+OUT_DIR = paths.data("measured", "hidden")
 BUS = "12m"
 DT_S = 0.1
 SEED = 2023
@@ -101,7 +102,14 @@ def hidden_effect(c: Case):
 
     if c.effect is None:
         return None
-    return resolve_effect(str(ROOT / c.effect) if ".py:" in c.effect else c.effect)
+    if ".py:" not in c.effect:
+        return resolve_effect(c.effect)
+    root = paths.checkout()
+    if root is None:
+        raise ConfigError(f"The case '{c.name}' hides {c.effect}, a file of the source "
+                          "checkout, which an installed package does not hold. Fix: run it "
+                          "from a clone of the repository.")
+    return resolve_effect(str(root / c.effect))
 
 
 def true_bus(c: Case):
@@ -210,6 +218,17 @@ def write_all(folder: str | Path = OUT_DIR, seed: int = SEED) -> list[Path]:
     return written
 
 
-if __name__ == "__main__":  # pragma: no cover
-    for p in write_all(*(sys.argv[1:2] or [])):
+def main(argv: list[str] | None = None) -> None:
+    """``python -m ebus_env.diagnostics.hidden [--help] [FOLDER]``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m ebus_env.diagnostics.hidden",
+                                     description="Write the hidden-effect logs and cases.json.")
+    parser.add_argument("folder", nargs="?", type=Path, default=OUT_DIR,
+                        help=f"output folder (default: {OUT_DIR})")
+    for p in write_all(parser.parse_args(argv).folder):
         print(p)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ebus_env.cycles import Cycle, load_cycle
+from ebus_env.errors import ConfigError
 
 STEP_M = 1.0
 STANDING_MPS = 0.05
@@ -76,7 +77,7 @@ def course_from_cycle(cycle: Cycle | str) -> Course:
     s = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
     length = float(s[-1])
     if length < 10 * STEP_M:
-        raise ValueError(f"Cycle '{cycle.name}' covers {length:.1f} m: too short for a course.")
+        raise ConfigError(f"Cycle '{cycle.name}' covers {length:.1f} m: too short for a course.")
     grid = np.linspace(0.0, length, int(np.ceil(length / STEP_M)) + 1)
     moving = v > STANDING_MPS
     # speed by distance: the cycle's speed where it passed, from its moving samples

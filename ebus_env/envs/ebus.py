@@ -7,15 +7,18 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
-from ebus_env.config import ROOT
+from ebus_env import paths
+from ebus_env.config import read_yaml
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, S_SOC, BusBatch
 from ebus_env.envs.climate import climate_of
 from ebus_env.envs.reward import QUANTITIES, TERMS, Reward
-from ebus_env.errors import ConfigError
+from ebus_env.errors import ActionError, ConfigError, EnvError
+from ebus_env.inputs import ENV_KEYS, check
 
-CONFIG_DIR = ROOT / "configs" / "env"
+CONFIG_DIR = paths.configs("env")
+_IN_INFO = [(k, o) for k, o in enumerate(OBSERVATIONS) if o[0] in OUT]
+"""Observations whose true value ``info`` carries (from ``OUT``), checked against the bounds."""
 SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h", "service_lost_h")  # in info, with OUT
 
 
@@ -54,13 +57,13 @@ def checked_actions(actions, shape: tuple[int, ...], names: list[str], env: str)
         elif -1.0 <= a.min() and a.max() <= 1.0:
             return a
     if a.shape != shape:
-        raise ValueError(f"Action has shape {a.shape}; {env} takes {shape} ({', '.join(names)}),"
+        raise ActionError(f"Action has shape {a.shape}; {env} takes {shape} ({', '.join(names)}),"
                          " each in [-1, 1].")
     bad = ~np.isfinite(a) | (a < -1.0 - 1e-6) | (a > 1.0 + 1e-6)
     if bad.any():
         i = np.unravel_index(int(np.flatnonzero(bad)[0]), a.shape)
         where = ", ".join(str(int(k)) for k in i)
-        raise ValueError(f"Action [{where}] ({names[i[-1]]}) = {a[i]}: every action must be a "
+        raise ActionError(f"Action [{where}] ({names[i[-1]]}) = {a[i]}: every action must be a "
                          f"finite number in [-1, 1] (the env maps it onto its range).")
     return np.clip(a, -1.0, 1.0)
 
@@ -119,6 +122,29 @@ class EnvConfig:
         object.__setattr__(self, "ambient_mean_degc", 15.0 if mean is None else float(mean))
         object.__setattr__(self, "ambient_amplitude_k",
                            4.0 if amplitude is None else float(amplitude))
+        for key, name in ENV_KEYS.items():
+            if getattr(self, key) is not None:
+                value = getattr(self, key)
+                check(name, value, f"env config {key}")
+                if key == "laps_per_trip" and float(value) != int(float(value)):
+                    raise ConfigError(f"env config laps_per_trip = {value!r} must be a whole "
+                                      "number.")
+                kind = int if key == "laps_per_trip" else float
+                object.__setattr__(self, key, kind(float(value)))  # "1e3" read from YAML
+        for key in ("bus", "overlay", "cycle", "route", "log"):
+            if not isinstance(getattr(self, key), (str, Path, type(None))):
+                raise ConfigError(f"env config {key} = {getattr(self, key)!r} must name a "
+                                  "config or file.")
+        if not isinstance(self.reward, (dict, Reward)):
+            raise ConfigError(f"env config reward = {self.reward!r} must map reward terms to "
+                              "weights (or be a Reward).")
+        for key in ("decide_at_stops", "charge_at_terminal"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"env config {key} = {getattr(self, key)!r} must be true or "
+                                  "false.")
+        if self.min_layover_min > self.layover_min:
+            raise ConfigError(f"env config min_layover_min = {self.min_layover_min:g} is longer "
+                              f"than layover_min = {self.layover_min:g}.")
 
     @classmethod
     def load(cls, source: str | Path | dict | None = None, **overrides) -> EnvConfig:
@@ -141,7 +167,7 @@ def config_keys(cls, source: str | Path | dict | None, overrides: dict, kind: st
             names = sorted(p.stem for p in folder.glob("*.yaml"))
             raise ConfigError(f"No {kind} config '{source}' (looked for {path}); shipped: "
                               f"{', '.join(names)}.")
-        data = yaml.safe_load(path.read_text()) or {}
+        data = read_yaml(path)  # bad YAML or a duplicated key: a ConfigError with the line
     data.update(overrides)
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)
@@ -254,18 +280,23 @@ class EBusEnv(gym.Env):
         self.action_names = list(ACTION_NAMES)
         self.action_space, self.observation_space = spaces()
         self._history: list[np.ndarray] = []
-        self._started = False
+        self._started = self._ended = False
+        self._warned: set[str] = set()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self.buses.reset(0, self.np_random)
         self._history = []
-        self._started = True
+        self._started, self._ended = True, False
+        self._warned = set()
         return self.buses.obs[0].copy(), {"observation_names": self.observation_names}
 
     def step(self, action):
         if not self._started:
-            raise RuntimeError("Call reset() before step().")
+            raise EnvError("Call reset() before step().")
+        if self._ended:
+            raise EnvError("step() after the episode ended (terminated): call reset() to "
+                           "start a new day.")
         values = physical(checked_actions(action, self.action_space.shape, self.action_names,
                                           "EBus-v0"))
         buses = self.buses
@@ -282,7 +313,24 @@ class EBusEnv(gym.Env):
                 buses.cabin_degc(0), values[2]]))
             if self.render_mode == "human":
                 self.render()
-        return (buses.obs[0].copy(), info["reward"], bool(depleted[0] or end[0]), False, info)
+        self._ended = bool(depleted[0] or end[0])
+        self._flag_bounds(info)
+        return (buses.obs[0].copy(), info["reward"], self._ended, False, info)
+
+    def _flag_bounds(self, info: dict) -> None:
+        """Name the observations whose true value lies beyond the observation bounds (the
+        observation holds the bound; ``info`` the true value), warning once per episode."""
+        clipped = []
+        for k, (name, unit, low, high) in _IN_INFO:
+            true = info[name]
+            if not low <= true <= high:
+                clipped.append(name)
+                if name not in self._warned:
+                    self._warned.add(name)
+                    gym.logger.warn(f"observation {k} ({name}) holds its bound: the true value "
+                                    f"is {true:.1f} {unit}, outside [{low:g}, {high:g}] "
+                                    f"(info['{name}'] has it).")
+        info["clipped_observations"] = clipped
 
     def render(self):
         if self.render_mode is None:
@@ -302,7 +350,13 @@ def spaces() -> tuple[gym.spaces.Box, gym.spaces.Box]:
 
 def reward_of(cfg: EnvConfig) -> Reward:
     """The config's reward: a :class:`Reward` instance as is, a dict as its weights."""
-    return cfg.reward if isinstance(cfg.reward, Reward) else Reward(**cfg.reward)
+    if isinstance(cfg.reward, Reward):
+        return cfg.reward
+    known = {f.name for f in fields(Reward) if f.init}
+    unknown = sorted(set(cfg.reward) - known)
+    if unknown:
+        raise ConfigError(f"Unknown reward weight(s) {unknown}; known: {sorted(known)}.")
+    return Reward(**cfg.reward)
 
 
 def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> dict:

@@ -38,9 +38,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ebus_env.config import ROOT, find_config, read_yaml
+from ebus_env import paths
+from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
 from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
+from ebus_env.inputs import MAX_STEPS, RANGES
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
@@ -188,7 +190,7 @@ def _nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
 
 def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarray, float]:
     """Seconds from the first row, and the time of day of the first row [h]."""
-    start_h = 0.0
+    start_h = None
     if "time_s" in frame.columns:
         t = _numeric(frame, "time_s", path)
     elif "timestamp" in frame.columns:
@@ -208,6 +210,11 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarr
     else:
         raise LogError("No time column." + _close_column("time_s", frame.columns), path=path,
                        fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
+    if start_h is None:
+        start_h = 0.0
+        report.changes.append("the log has no clock time: its first row is taken as 00:00 "
+                              "(the time of day of passengers, chargers and diagnoses); give a "
+                              "'timestamp' column of date-times to set it")
     nan = np.flatnonzero(np.isnan(t))
     if nan.size:
         raise LogError("Missing times", path=path, column="time_s", rows=nan,
@@ -222,6 +229,48 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarr
         raise LogError("Time goes backwards", path=path, column="time_s", rows=backwards,
                        fix="sort the log by time, or split it into files at the jumps")
     return t - t[0], start_h
+
+
+def _check_period(t: np.ndarray, dt_s: float, path: Path, report: LoadReport) -> float:
+    """The median sample period, in the loader's range (0.5-20 Hz; faster is averaged with a
+    warning), and a duration that fits in one run. Time in milliseconds is named as such."""
+    period = float(np.median(np.diff(t)))
+    rng = RANGES["log_period_s"]
+    if 50.0 <= period <= 2000.0 and t[-1] > 48 * 3600.0:  # 0.5-20 Hz in ms, "days" long
+        raise LogError(f"Times look like milliseconds (median step {period:g}, a log of "
+                       f"{t[-1] / 86400:.1f} days if they were seconds)", path=path,
+                       column="time_s", fix="divide the times by 1000 (time_s holds seconds)")
+    try:
+        report.warnings += rng.check(period, "the median sample period")
+    except ConfigError as exc:
+        raise LogError(str(exc), path=path, column="time_s",
+                       fix="give a log sampled at 0.5-20 Hz") from None
+    if t[-1] < dt_s:
+        raise LogError(f"The log lasts {t[-1]:g} s, less than one time step of {dt_s:g} s",
+                       path=path, column="time_s", fix="give a longer log")
+    if t[-1] / dt_s > MAX_STEPS:
+        raise LogError(f"The log lasts {t[-1] / 3600:.1f} h: {t[-1] / dt_s:,.0f} steps of "
+                       f"{dt_s:g} s, more than one run holds ({MAX_STEPS:,})", path=path,
+                       column="time_s", fix="split it into days, or check the time unit")
+    return period
+
+
+def _unknown_columns(values: dict, mapped: bool, report: LoadReport) -> None:
+    """Say which columns the model does not read, and which shipped preset would map them."""
+    unknown = [c for c in values if c not in CANONICAL]
+    if not unknown:
+        return
+    report.changes.append("kept as measured signals, not read by the model: "
+                          + ", ".join(f"'{c}'" for c in unknown))
+    if mapped:
+        return
+    for preset in paths.config_names("logs"):
+        matched = [c for c in column_preset(preset) if c in unknown]
+        if matched:
+            report.warnings.append(
+                f"the column preset '{preset}' maps {', '.join(repr(c) for c in matched)} "
+                f"of this log onto the model's inputs: pass --columns {preset} "
+                f"(columns='{preset}')")
 
 
 def _fill_nan(name: str, values: np.ndarray, t: np.ndarray, path: Path, fill: str,
@@ -330,6 +379,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
                 values[name_] = _numeric(frame, name_, path)
             except LogError:
                 report.ignored.append(f"column '{name_}' is not numeric and was not used")
+    _unknown_columns(values, columns is not None, report)
     for flag in FLAGS:
         if flag in values:
             v = values[flag]
@@ -346,14 +396,21 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
                                   flag=name_ in FLAGS + ("passengers", "charger_kw"))
     _check_units(values, t, path, check_units)
     speed_mps = values[speed_col] / 3.6 if speed_col == "speed_kmh" else values[speed_col]
-    _check_range(speed_col, values[speed_col], 0.0, 400.0, path, "speeds must be >= 0 and "
-                 "plausible")
+    speed = RANGES["log_speed_kmh"]
+    _check_range(speed_col, speed_mps * 3.6, speed.low, speed.high, path, speed.why)
     if "soc_pct" in values:
-        _check_range("soc_pct", values["soc_pct"], 0.0, 100.0, path, "SoC in percent: 0-100")
+        soc = RANGES["log_soc_pct"]
+        _check_range("soc_pct", values["soc_pct"], soc.low, soc.high, path, soc.why)
     if "soc_frac" in values:
         _check_range("soc_frac", values["soc_frac"], 0.0, 1.0, path, "SoC as a fraction: 0-1")
+    if "ambient_degc" in values:
+        amb = RANGES["ambient_degc"]
+        _check_range("ambient_degc", values["ambient_degc"], amb.low, amb.high, path, amb.why)
+    if "soc_pct" not in values and "soc_frac" not in values:
+        report.warnings.append("the log has no SoC column (soc_pct or soc_frac): nothing to "
+                               "compare, and a simulation starts at the given or default SoC")
 
-    period = float(np.median(np.diff(t)))
+    period = _check_period(t, dt_s, path, report)
     report.sample_period_s = period
     limit = max(10.0, 5.0 * period) if max_gap_s is None else max_gap_s
     gap_rows = np.flatnonzero(np.diff(t) > limit)
@@ -471,4 +528,4 @@ def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:
 
 
 def preset_names() -> list[str]:
-    return sorted(p.stem for p in (ROOT / "configs" / "logs").glob("*.yaml"))
+    return paths.config_names("logs")

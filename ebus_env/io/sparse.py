@@ -25,7 +25,8 @@ import numpy as np
 
 from ebus_env.cycles import Cycle, load_cycle
 from ebus_env.errors import LogError
-from ebus_env.io.measured import MeasuredLog, _numeric, _time, open_log
+from ebus_env.inputs import MAX_STEPS, RANGES
+from ebus_env.io.measured import MeasuredLog, _check_range, _numeric, _time, open_log
 from ebus_env.profile import Profile
 
 
@@ -51,9 +52,13 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
     if back.size:
         raise LogError("Distance decreases", path=path, column="distance_km", rows=back,
                        fix="give the cumulative distance (odometer)")
+    _check_sparse(t, distance, soc, dt_s, path)
     charging = _numeric(frame, "charging", path) if "charging" in frame.columns \
         else np.zeros(len(t))
     ambient = _numeric(frame, "ambient_degc", path) if "ambient_degc" in frame.columns else None
+    if ambient is not None:
+        amb = RANGES["ambient_degc"]
+        _check_range("ambient_degc", ambient, amb.low, amb.high, path, amb.why)
     base = cycle if isinstance(cycle, Cycle) else load_cycle(cycle)
     pieces, connected = [], []
     kinds = {"charging": 0, "standing": 0, "cycle": 0, "constant": 0, "split": 0}
@@ -96,6 +101,32 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
     profile = Profile(channels, dt_s, name or path.stem, start_h, measured,
                       list(report.changes), samples={"soc_frac": rows})
     return MeasuredLog([profile], report)
+
+
+def _check_sparse(t, distance_m, soc_frac, dt_s: float, path: Path) -> None:
+    """SoC in percent, intervals of at least one step with a plausible mean speed, a day that
+    fits in one run."""
+    soc = RANGES["log_soc_pct"]
+    _check_range("soc_pct", 100.0 * soc_frac, soc.low, soc.high, path, soc.why)
+    if np.max(soc_frac) <= 0.01:
+        raise LogError(f"SoC looks like a fraction, not percent (max {100 * np.max(soc_frac):g})",
+                       path=path, column="soc_pct", fix="give SoC in percent (90 for 90 %)")
+    short = np.flatnonzero(np.diff(t) < dt_s) + 1
+    if short.size:
+        raise LogError(f"Samples closer than one time step ({dt_s:g} s)", path=path,
+                       column="time_s", rows=short, fix="a sparse log has minutes between "
+                       "samples; load a dense log without --sparse")
+    speed = RANGES["log_speed_kmh"]
+    mean_kmh = 3.6 * np.diff(distance_m) / np.diff(t)
+    fast = np.flatnonzero(mean_kmh > speed.high) + 1
+    if fast.size:
+        raise LogError(f"Distance implies more than {speed.high:g} km/h between samples (e.g. "
+                       f"{mean_kmh[fast[0] - 1]:.0f} km/h)", path=path, column="distance_km",
+                       rows=fast, fix="give distance in km and time in seconds")
+    if t[-1] / dt_s > MAX_STEPS:
+        raise LogError(f"The log lasts {t[-1] / 3600:.1f} h, more than one run holds "
+                       f"({MAX_STEPS:,} steps of {dt_s:g} s)", path=path, column="time_s",
+                       fix="split it into days, or check the time unit (seconds)")
 
 
 def _fill(cycle: Cycle, mean_mps: float, steps: int, dt_s: float,

@@ -16,7 +16,7 @@ from pathlib import Path
 import yaml
 
 from ebus_env.errors import ConfigError
-from ebus_env.io.atomic import write_text_atomic
+from ebus_env.outputs import write_text
 from ebus_env.study.results import finished, read_results, write_rows
 from ebus_env.study.scenarios import Scenario, scenarios
 from ebus_env.study.spec import StudySpec
@@ -44,7 +44,7 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         raise ConfigError(f"{out} already holds the rows of {len(done)} scenario(s): add "
                           "--resume to finish that study, or give another --out folder.")
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "study.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
+    write_text(out / "study.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
     todo = [s for s in scenarios(spec) if s.key(spec) not in done]
     say(f"study '{spec.name}': {len(scenarios(spec))} scenario(s) x {spec.days.count} day(s); "
         f"{len(scenarios(spec)) - len(todo)} already done, {len(todo)} to run "

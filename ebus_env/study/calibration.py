@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ebus_env.errors import ConfigError
-from ebus_env.io.atomic import atomic_path
+from ebus_env.outputs import atomic
 
 Z_LIMIT = 3.5
 PATTERNS = ("*.csv", "*.csv.gz", "*.parquet")
@@ -117,7 +117,7 @@ def calibrate_fleet(logs_dir: str | Path, bus: str, out: str | Path, *, columns:
     table = pd.DataFrame([rows[p] for p in logs])
     params = [c for c in table.columns if "." in c and " " not in c]
     table = flag_outliers(table, [*params, "nrmse"])  # and a log the model fits far worse
-    with atomic_path(out) as tmp:
+    with atomic(out) as tmp:
         if out.suffix == ".csv":
             table.to_csv(tmp, index=False, float_format="%.6g")
         else:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ebus_env.io.atomic import atomic_path
+from ebus_env.outputs import atomic
 
 ROWS = "rows"
 
@@ -34,7 +34,7 @@ def write_rows(out: str | Path, key: str, rows: list[dict]) -> Path:
     frame = pd.DataFrame(rows)
     frame.insert(0, "scenario_key", key)
     path = folder / f"{key}.parquet"
-    with atomic_path(path) as tmp:
+    with atomic(path) as tmp:
         frame.to_parquet(tmp, index=False)
     return path
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from ebus_env.html_report import Figure, Section, Table, write_report
-from ebus_env.io.atomic import atomic_path
+from ebus_env.outputs import atomic
 
 COST_PARTS = ("energy", "demand", "chargers", "battery_wear")
 MEANS = ("cost_per_km", *(f"cost_{p}_per_km" for p in COST_PARTS), "kwh_per_km", "grid_kwh",
@@ -137,12 +137,12 @@ def write_summary(spec, rows: pd.DataFrame, out: str | Path) -> pd.DataFrame:
     summary."""
     out = Path(out)
     summary = summarise(rows)
-    with atomic_path(out / "summary.csv") as tmp:
+    with atomic(out / "summary.csv") as tmp:
         summary.to_csv(tmp, index=False, float_format="%.6g")
     currency = spec.costs.currency
     figures = _figures(rows, summary, currency)
     for figure in figures:  # also as files, for slides and docs
-        with atomic_path(out / f"{figure.name}.png") as tmp:
+        with atomic(out / f"{figure.name}.png") as tmp:
             tmp.write_bytes(base64.b64decode(figure.png))
     pareto, cost, load, use = figures
     best = summary[summary["feasible"]]

@@ -1,0 +1,52 @@
+"""A numba compile failure, told as the user's mistake: which effect, file and line, and what
+to do (numba's own message names none of them and often blames the wrong thing)."""
+
+from __future__ import annotations
+
+import inspect
+import re
+
+from ebus_env.effects.base import registered_effects
+from ebus_env.errors import CompositionError
+
+_FIX = ("Fix: effects run compiled, so every function an effect calls needs the @helper "
+        "decorator (from ebus_env import helper), and an effect may use only numbers, "
+        "math/numpy functions and its parameters (no dicts, strings, lists or Python objects).")
+
+
+def _where(function) -> tuple[str, int, list[str]]:
+    lines, first = inspect.getsourcelines(function)
+    return inspect.getsourcefile(function) or "?", first, lines
+
+
+def explain(exc: BaseException) -> CompositionError | None:
+    """The effect a numba ``TypingError`` comes from, as a :class:`CompositionError` (None
+    when ``exc`` is no compile failure or no registered effect matches it)."""
+    try:
+        from numba.core.errors import TypingError
+    except ImportError:  # pragma: no cover - numba is a core dependency
+        return None
+    if not isinstance(exc, TypingError):
+        return None
+    text = str(exc)
+    cause = next((line.strip() for line in text.splitlines()
+                  if line.strip() and not line.startswith(("Failed in", "During"))), text)
+    located = re.findall(r'File "([^"]+)", line (\d+)', text)
+    names = set(re.findall(r"(?:name|global name) '(\w+)'", text))
+    for eff in registered_effects().values():
+        for site, call in eff.calls.items():
+            try:
+                file, first, lines = _where(call.function)
+            except (OSError, TypeError):
+                continue
+            hit = next((int(n) for f, n in located if f == file
+                        and first <= int(n) < first + len(lines)), None)
+            if hit is None and names & set(call.function.__code__.co_names):
+                name = sorted(names & set(call.function.__code__.co_names))[0]
+                hit = next((first + i for i, line in enumerate(lines)
+                            if re.search(rf"\b{name}\b", line) and i > 0), first)
+            if hit is not None:
+                what = eff.name if site == "main" else f"{eff.name} ({site})"
+                return CompositionError(f"Effect '{what}' ({file}, line {hit}) cannot be "
+                                        f"compiled by numba: {cause}. {_FIX}")
+    return None

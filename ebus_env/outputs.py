@@ -1,0 +1,116 @@
+"""Output files: checked before a run starts, written whole or not at all.
+
+Every command names its inputs and outputs up front; :func:`check_outputs` refuses, before any
+work is done, an output that resolves to an input file (it would destroy it), a folder, a
+folder that cannot be created, or a suffix the writer does not produce. :func:`atomic` then
+writes each output to a temporary file in the same folder and renames it over the target
+(``os.replace``, atomic on POSIX and Windows), so a crash leaves the old file whole.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from ebus_env.errors import ConfigError
+
+TABLE_SUFFIXES = (".parquet", ".csv")
+JSON_SUFFIXES = (".json",)
+PLOT_SUFFIXES = (".png", ".svg", ".pdf")
+HTML_SUFFIXES = (".html", ".htm")
+YAML_SUFFIXES = (".yaml", ".yml")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """True when ``a`` and ``b`` name one file (symlinks, ``..`` and hard links included)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(path: Path, option: str, suffixes: Iterable[str],
+                 inputs: Iterable[Path] = ()) -> Path:
+    """Check one output path before the run; create its folder. Returns the path.
+
+    Parameters
+    ----------
+    path
+        The output file as given.
+    option
+        The option that named it (``--out``), for the message.
+    suffixes
+        Accepted suffixes (lower case, with the dot).
+    inputs
+        Files the command reads; the output may not be any of them.
+    """
+    path = Path(path)
+    suffixes = tuple(suffixes)
+    for source in inputs:
+        if source is not None and Path(source).exists() and _same_file(path, Path(source)):
+            raise ConfigError(f"{option} {path} is an input of this command and would be "
+                              "overwritten. Fix: write to another file name.")
+    if path.is_dir():
+        raise ConfigError(f"{option} {path} is a folder. Fix: give a file name, e.g. "
+                          f"{path / ('out' + suffixes[0])}.")
+    if path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{option} {path}: suffix '{path.suffix}' is not one this output is "
+                          f"written as. Accepted: {', '.join(suffixes)}. Fix: rename the file.")
+    check_folder(path.parent, option)
+    return path
+
+
+def check_folder(folder: Path, option: str, inputs: Iterable[Path] = ()) -> Path:
+    """Create ``folder`` (and parents) if needed; refuse a file or an unwritable place, and a
+    folder that holds an input (an output folder is written into freely)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"{option} {folder} is a file, not a folder. Fix: name a folder.")
+    for source in inputs:
+        if Path(source).resolve().parent == folder.resolve():
+            raise ConfigError(f"{option} {folder} holds the input {source}; outputs written "
+                              "there could overwrite it. Fix: name another folder.")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{option}: cannot create the folder {folder} ({exc.strerror}). "
+                          "Fix: name a folder you can write to.") from None
+    if not os.access(folder, os.W_OK):
+        raise ConfigError(f"{option}: the folder {folder} is not writable. Fix: name a folder "
+                          "you can write to.")
+    return folder
+
+
+@contextlib.contextmanager
+def atomic(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix, so writers infer the format);
+    rename it over ``path`` when the block ends without an error, delete it otherwise."""
+    path = Path(path)
+    fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        # mkstemp makes the file private (0600); give it the mode a plain open() would
+        os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o666 & ~_umask())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` through a temporary file; return the path."""
+    with atomic(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
