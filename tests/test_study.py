@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.errors import ConfigError
 from ebus_env.study import load_study, read_results
 from ebus_env.study.backends import run_study
@@ -21,7 +21,7 @@ from ebus_env.study.runner import depot, run_scenario
 from ebus_env.study.scenarios import scenarios
 from ebus_env.study.summary import pareto_front, write_summary
 
-EXAMPLE = ROOT / "configs" / "studies" / "example.yaml"
+EXAMPLE = paths.configs("studies") / "example.yaml"
 COSTS = yaml.safe_load(EXAMPLE.read_text())["costs"]
 SMALL = {  # three buses for 2 h from 70 % SoC (so that they charge): seconds per scenario
     "name": "small",

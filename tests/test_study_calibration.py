@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ebus_env.config import ROOT
+from ebus_env import paths
 from ebus_env.errors import ConfigError
 from ebus_env.study.calibration import calibrate_fleet, flag_outliers, robust_z
 
-BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
+BMW = paths.data("measured", "bmw_i3_tum")
 
 
 def test_robust_z_by_hand():
