@@ -141,7 +141,16 @@ def config_keys(cls, source: str | Path | dict | None, overrides: dict, kind: st
             names = sorted(p.stem for p in folder.glob("*.yaml"))
             raise ConfigError(f"No {kind} config '{source}' (looked for {path}); shipped: "
                               f"{', '.join(names)}.")
-        data = yaml.safe_load(path.read_text()) or {}
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            raise ConfigError(f"{kind} config {path}{where}: not valid YAML "
+                              f"({getattr(exc, 'problem', None) or exc}); fix the file.") from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"{kind} config {path}: needs key: value lines, got a "
+                              f"{type(data).__name__}.")
     data.update(overrides)
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)

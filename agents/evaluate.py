@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from scipy import stats
 
-from ebus_env.agents.rules import RULES
+from agents.rules import RULES
 from ebus_env.envs.vector import EBusVectorEnv
 
 HELD_OUT_SEED = 10_000
