@@ -11,7 +11,7 @@ Two kinds:
   (``road_force_n``, ``dc_load_w``, ``mass_kg``, ``cabin_heat_w``), optionally followed by extra
   signals it provides (``returns``);
 * a **slot** implementation returns the signals its slot's call site requires
-  (see :data:`ebus_env.model.signals.SLOTS`), optionally followed by extras.
+  (see :data:`ebus_env.signals.SLOTS`), optionally followed by extras.
 
 An effect that owns a state (``State``) reads its current value by name and returns
 ``<state>_next``. The model compiles all chosen effects into one step function, so effect
@@ -42,7 +42,7 @@ import numba
 
 from ebus_env.effects.tables import Table
 from ebus_env.errors import ConfigError, unknown_name
-from ebus_env.model.signals import SINKS, SLOTS, Input
+from ebus_env.signals import SINKS, SLOTS, Input
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from ebus_env.envs import reference
 from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
 from ebus_env.errors import ConfigError
-from ebus_env.model.model import default_threads, run_chunks
+from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.units import J_PER_KWH
 
 OBSERVATIONS = (  # name, unit, low, high
