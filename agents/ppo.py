@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ebus_env.config import ROOT
-from ebus_env.envs.ebus import config_keys
+from ebus_env.envs.spec import config_keys
 from ebus_env.errors import ConfigError
 
 DEFAULT_AGENT = ROOT / "trained" / "ppo_sort2_day"

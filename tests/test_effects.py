@@ -337,3 +337,24 @@ def test_ambient_battery_follows_the_ambient(fn):
     assert temp == 20.0 and nxt == pytest.approx(0.0)
     temp, nxt = fn(20.0, 0.0, 36.0, 1.0, 0.0)
     assert nxt == pytest.approx(20.0 - 20.0 * 0.01)
+
+
+def test_an_effect_offers_handles_by_name_and_unit():
+    from ebus_env.effects.base import Param, effect
+    from ebus_env.errors import ConfigError
+
+    assert get_effect("grid_charger").handles["charge_pulse_duty"] == "pulse_duty"
+    assert get_effect("cabin_hvac").handles == {"cabin_setpoint_degc": "setpoint_degc"}
+
+    def heater(heater_kw):
+        return 1e3 * heater_kw
+
+    def declare(**handles):
+        return effect("my_heater", sink="dc_load_w", register_effect=False, handles=handles,
+                      params=[Param("heater_kw", 5.0, "kW", (0.0, 20.0), "Heater power")])(heater)
+
+    assert declare().handles == {} and declare(charger_power_kw="heater_kw").handles
+    with pytest.raises(ConfigError, match="Unknown handle.*'cabin_setpoint'.*cabin_setpoint_degc"):
+        declare(cabin_setpoint="heater_kw")
+    with pytest.raises(ValueError, match="'charge_pulse_duty' is in 1; parameter 'heater_kw' in kW"):
+        declare(charge_pulse_duty="heater_kw")

@@ -25,7 +25,7 @@ from ebus_env.model.kernels import compile_kernel, compile_lanes, python_kernel
 from ebus_env.model.lanes import LANES_MIN
 from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.profile import Profile
-from ebus_env.signals import SINKS, SLOTS
+from ebus_env.signals import HANDLES, SINKS, SLOTS
 
 
 def _resolve(item: str | Effect) -> Effect:
@@ -114,6 +114,22 @@ class Model:
         if name not in self._param_index:
             raise unknown_name("parameter", name, self.param_names)
         return self._param_index[name]
+
+    def handle(self, name: str) -> int:
+        """Column of ``params`` of the parameter this model's effects offer as handle ``name``
+        (:data:`ebus_env.signals.HANDLES`, e.g. ``charge_pulse_duty``); a clear error when no
+        effect, or more than one, offers it."""
+        if name not in HANDLES:
+            raise unknown_name("handle", name, HANDLES)
+        offers = [f"{e.name}.{e.handles[name]}" for e in self.effects if name in e.handles]
+        if len(offers) != 1:
+            h = HANDLES[name]
+            raise CompositionError(
+                f"Model '{self.name}': {len(offers) or 'no'} effects offer the {h.description} "
+                f"(handle '{name}'{': ' + ', '.join(offers) if offers else ''}); exactly one "
+                f"must, e.g. {h.provider}, or an effect of yours declaring handles={{'{name}': "
+                "'<its parameter>'}.")
+        return self._param_index[offers[0]]
 
     def describe(self) -> str:
         lines = [f"model {self.name or '(unnamed)'}: dt = {self.dt_s} s"]
