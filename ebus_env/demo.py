@@ -16,7 +16,7 @@ from pathlib import Path
 from ebus_env.config import ROOT, load_bus
 from ebus_env.cycles import service_day
 from ebus_env.io.measured import load_log
-from ebus_env.report import BREAKDOWN_LABELS, FIGURES, write_json
+from ebus_env.report import FIGURES, breakdown_label, write_json
 from ebus_env.simulate import run_profiles
 
 BMW_DIR = ROOT / "data" / "measured" / "bmw_i3_tum"
@@ -36,7 +36,7 @@ def _table(summary: dict) -> str:
     rows = "".join(f"<tr><td>{label}</td><td>{summary[key]:.{d}f}</td><td>{unit}</td></tr>"
                    for key, label, unit, d in FIGURES if key in summary
                    and isinstance(summary[key], float))
-    energy = "".join(f"<tr><td>{BREAKDOWN_LABELS.get(k, k)}</td><td>{v:.2f}</td></tr>"
+    energy = "".join(f"<tr><td>{breakdown_label(k)}</td><td>{v:.2f}</td></tr>"
                      for k, v in summary["breakdown_kwh"].items())
     return (f"<table><tr><th>figure</th><th>value</th><th>unit</th></tr>{rows}</table>"
             f"<table><tr><th>energy</th><th>kWh</th></tr>{energy}</table>")

@@ -141,10 +141,3 @@ class Profile:
                        self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
                        {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
                        samples)
-
-    def to_frame(self):
-        """The profile as a pandas DataFrame (``time_s`` first)."""
-        import pandas as pd
-
-        data = {"time_s": self.time_s, **self.channels, **self.measured}
-        return pd.DataFrame(data)

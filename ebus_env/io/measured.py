@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ebus_env.config import ROOT, find_config, read_yaml
+from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
 from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
 from ebus_env.profile import Profile
@@ -468,7 +468,3 @@ def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:
                 report.warnings.append(
                     f"{over.size} steps with |acceleration| above {max_accel_mps2:g} m/s^2 "
                     f"(max {a.max():.2f} m/s^2): the model cannot follow them exactly")
-
-
-def preset_names() -> list[str]:
-    return sorted(p.stem for p in (ROOT / "configs" / "logs").glob("*.yaml"))

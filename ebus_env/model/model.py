@@ -131,15 +131,6 @@ class Model:
                 "'<its parameter>'}.")
         return self._param_index[offers[0]]
 
-    def describe(self) -> str:
-        lines = [f"model {self.name or '(unnamed)'}: dt = {self.dt_s} s"]
-        for slot, eff in self.composition.slots.items():
-            lines.append(f"  slot {slot:13s} {eff.name if eff else 'none'}")
-        for sink, effs in self.composition.contributions.items():
-            if effs:
-                lines.append(f"  sink {sink:13s} {', '.join(e.name for e in effs)}")
-        return "\n".join(lines)
-
     # -- parameters -------------------------------------------------------------------------
     def _check_in_bounds(self, values: np.ndarray, what: str) -> None:
         low, high = self.bounds[:, 0], self.bounds[:, 1]
