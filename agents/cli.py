@@ -14,8 +14,6 @@ from typing import Annotated
 
 import typer
 
-from ebus_env.cli import _console, _run  # the app's error printing: one line, exit code 2
-
 ThreadsOpt = Annotated[int, typer.Option(
     "--threads", min=1, help="Torch threads for the policy network (1 suits small MLPs)")]
 
@@ -24,6 +22,20 @@ def register(app: typer.Typer) -> None:
     """Add ``train`` and ``evaluate`` to ``app`` (the ``ebus`` command)."""
     app.command()(evaluate)
     app.command()(train)
+
+
+def _run(body) -> None:
+    """The app's way to run a command body: errors as one line, exit code 2. Imported at
+    call time, as ``ebus_env.cli`` imports this module while it loads."""
+    from ebus_env.cli import _run as run
+
+    run(body)
+
+
+def _console():
+    from ebus_env.cli import _console as console
+
+    return console()
 
 
 def _env_overrides(items: list[str] | None) -> dict:

@@ -223,3 +223,19 @@ def test_fleet_charging_rules_order_the_site_peak_and_share_by_need():
     obs[0], obs[len(OBSERVATIONS)] = 0.5, 0.9  # bus 0 emptier than bus 1
     action = policy.predict(obs)[0].reshape(-1, 5)
     assert action[0, 3] > action[1, 3]
+
+
+def test_the_agent_commands_plug_into_ebus_through_an_entry_point():
+    import tomllib
+    from pathlib import Path
+
+    import typer
+
+    from agents.cli import register
+
+    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert pyproject["project"]["entry-points"]["ebus_env.commands"] == {
+        "agents": "agents.cli:register"}
+    app = typer.Typer()
+    register(app)
+    assert {c.callback.__name__ for c in app.registered_commands} == {"train", "evaluate"}
