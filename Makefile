@@ -1,7 +1,8 @@
 # Two commands do all set-up on a fresh machine (Python 3.11):
 #   make demo    install into .venv and run the main job on bundled data -> report/index.html
 #                and a small fleet study -> report/study/report.html
-#   make test    install into .venv and run the test suite
+#   make test    install into .venv and run the fast tests (the ones not marked slow)
+#   make test-all   ... and every test, the slow ones too (what CI runs)
 # Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
 
 PYTHON ?= python3
@@ -11,11 +12,11 @@ PIP    := $(VENV)/bin/pip install -c constraints.txt
 export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test test-all bench lint clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e ".[rl,dev,scale]"
+	$(PIP) -e ".[rl,dev,scale,bench]"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -23,13 +24,16 @@ demo: $(STAMP)
 	$(VENV)/bin/ebus study configs/studies/example.yaml --out report/study --resume
 
 test: $(STAMP)
+	$(VENV)/bin/python -m pytest -n 2 -m "not slow"
+
+test-all: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2
 
 bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/bench_core.py
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check ebus_env tests benchmarks examples
+	$(VENV)/bin/ruff check ebus_env agents tests benchmarks examples
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -14,9 +14,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from ebus_env.agents.evaluate import FEATURES, evaluate  # noqa: E402
-from ebus_env.agents.ppo import load_policy  # noqa: E402
-from ebus_env.agents.rules import RULES, rule  # noqa: E402
+from agents.evaluate import FEATURES, evaluate  # noqa: E402
+from agents.ppo import load_policy  # noqa: E402
+from agents.rules import RULES, rule  # noqa: E402
 
 SHOWN = ("reward", "kwh_per_km", "battery_kwh", "grid_kwh", "peak_grid_kw", "hvac_kwh",
          "comfort_kh", "late_min")

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from ebus_env.config import load_bus  # noqa: E402
 from ebus_env.cycles import service_day  # noqa: E402
-from ebus_env.model import codegen  # noqa: E402
+from ebus_env.model.lanes import LANES_MIN  # noqa: E402
 
 FASTSIM_DAY_S = 8.0
 rows: list[tuple[str, str, str]] = []
@@ -122,7 +122,7 @@ def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
     """The batch as calibration runs it: SoC kept at a 1 Hz log's rows, no energy sums."""
     n = params.shape[0]
     # timed runs exclude the JIT
-    model.compile(sample=True, lanes=n >= 2 * codegen.LANES_MIN, params=params)
+    model.compile(sample=True, lanes=n >= 2 * LANES_MIN, params=params)
     inputs = model.input_array(day)
     states = np.repeat(model.initial_state(model.params, {"speed_ref_mps": 0.0}, 0.95)[None],
                        n, axis=0)
@@ -141,8 +141,8 @@ def calibration_pass(model, day, params: np.ndarray, repeat: int) -> None:
 
 def lanes_and_scalar(what: str, n: int, n_steps: int, threads: int, repeat: int, run) -> None:
     """Rows for ``run(lanes)`` (its wall time [s]) with SIMD lanes and one bus at a time, taken
-    in turn; lanes apply from ``codegen.LANES_MIN`` buses per thread."""
-    ways = (True, False) if n >= threads * codegen.LANES_MIN else (False,)
+    in turn; lanes apply from ``LANES_MIN`` buses per thread."""
+    ways = (True, False) if n >= threads * LANES_MIN else (False,)
     walls: dict[bool, list[float]] = {lanes: [] for lanes in ways}
     for _ in range(repeat):
         for lanes in ways:

@@ -9,6 +9,7 @@ table; no assertions.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -44,8 +45,10 @@ def vector_rate(venv, steps: int, seed: int) -> float:
     return steps * venv.num_envs / (time.perf_counter() - t0)
 
 
-def ppo_rate(num_envs: int, steps: int) -> float:
-    """PPO (stable-baselines3 defaults, n_steps 128) env steps per second of learn()."""
+def ppo_rate(num_envs: int, steps: int, threads: int) -> float:
+    """PPO (stable-baselines3 defaults, n_steps 128) env steps per second of learn(), torch on
+    ``threads`` threads."""
+    import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecMonitor
@@ -55,9 +58,14 @@ def ppo_rate(num_envs: int, steps: int) -> float:
     venv = VecMonitor(SB3VecEnv(num_envs=num_envs))
     model = PPO("MlpPolicy", venv, n_steps=128, batch_size=256, seed=0, device="cpu")
     model.set_logger(Logger(None, []))  # no output (and no SB3-<time> folder in /tmp)
-    t0 = time.perf_counter()
-    model.learn(steps)
-    return steps / (time.perf_counter() - t0)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        t0 = time.perf_counter()
+        model.learn(steps)
+        return steps / (time.perf_counter() - t0)
+    finally:
+        torch.set_num_threads(before)
 
 
 def median(rate, repeats: int) -> float:
@@ -101,8 +109,10 @@ def main() -> None:
     label = "EBusFleet-v0, 6 buses (fleet decisions; x6 bus-decisions)"
     print(f"  {label:55s} {rate:12,.0f}")
     n_ppo, n_envs = (256, 2) if smoke else (65_536, 64)
-    label = f"PPO learn(), SB3VecEnv with {n_envs} sub-envs (env steps/s)"
-    print(f"  {label:55s} {ppo_rate(n_envs, n_ppo):12,.0f}")
+    # torch's default is a thread per core; for a 64x64 MLP the threads mostly wait
+    for threads in sorted({1, os.cpu_count() or 1}):
+        label = f"PPO learn(), SB3VecEnv with {n_envs} sub-envs, torch {threads} thread(s)"
+        print(f"  {label:55s} {ppo_rate(n_envs, n_ppo, threads):12,.0f}  env steps/s")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from ebus_env.config import load_bus  # noqa: E402
 from ebus_env.cycles import service_day  # noqa: E402
-from ebus_env.model import codegen  # noqa: E402
+from ebus_env.model import kernels, lanes  # noqa: E402
 
 N_BUS = 64
 VARYING = ("passenger_load.load_frac", "cabin_hvac.setpoint_degc", "static_rcd.rcd_frac",
@@ -48,13 +48,14 @@ def statements(lines: list[str]) -> list[tuple[int, int]]:
     return spans
 
 
-def compiled(source: str, tag: str):
+def compiled(model, source: str, tag: str):
     """``run_lanes`` of a (modified) kernel source, compiled without the disk cache."""
-    path = codegen.cache_dir() / f"lane_costs_{tag}.py"
+    path = kernels.cache_dir() / f"lane_costs_{tag}.py"
     path.write_text(source)
     try:
         spec = importlib.util.spec_from_file_location(f"lane_costs_{tag}", path)
         module = importlib.util.module_from_spec(spec)
+        vars(module).update(kernels.bindings(model.composition, model.layout.calls, python=False))
         spec.loader.exec_module(module)
         return numba.njit(cache=False, nogil=True, error_model="numpy")(module.run_lanes)
     finally:
@@ -69,7 +70,6 @@ def main() -> None:
     bus = load_bus(args.bus)
     model = bus.build()
     day = service_day("sort2", 1.0, model.dt_s, bus.service)
-    codegen._register_effects(model.composition)  # the generated module binds effects by name
     params = np.tile(model.params, (N_BUS, 1))
     rng = np.random.default_rng(0)
     for name in VARYING:  # as bench_core's batches: the other parameters are shared
@@ -91,18 +91,18 @@ def main() -> None:
             best = min(best, time.perf_counter() - t0)
         return 1e9 * best / (N_BUS * day.n_steps)
 
-    source = codegen.lane_source(model.layout, model.varying_columns(params))
+    source = lanes.lane_source(model.layout, model.varying_columns(params))
     start = source.index("def run_lanes(")
     end = source.index("\ndef run_sample_lanes(")
     lines = source[start:end].split("\n")
     spans = statements(lines)
-    base = compiled(source, "base")
+    base = compiled(model, source, "base")
     ns_per_bus_step(base, 1)  # the first call binds the arguments' types
     print(f"{len(spans)} statements in the lane loop of '{args.bus}'; cost per bus-step:")
     for i in args.which or range(len(spans)):
         a, b = spans[i]
         doubled = "\n".join(lines[:b] + lines[a:b] + lines[b:])
-        kernel = compiled(source[:start] + doubled + source[end:], str(i))
+        kernel = compiled(model, source[:start] + doubled + source[end:], str(i))
         ns_per_bus_step(kernel, 1)
         before, cost, after = ns_per_bus_step(base), ns_per_bus_step(kernel), ns_per_bus_step(base)
         print(f"{i:4d} {cost - min(before, after):+6.2f} ns  (loop {min(before, after):.1f})  "

@@ -35,7 +35,7 @@ _EXPORTS = {
     "TableData": "ebus_env.effects.tables",
     "lookup1": "ebus_env.effects.tables",
     "lookup2": "ebus_env.effects.tables",
-    "Input": "ebus_env.model.signals",
+    "Input": "ebus_env.signals",
     "Model": "ebus_env.model.model",
     "build_model": "ebus_env.model.model",
     "Profile": "ebus_env.profile",

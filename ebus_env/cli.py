@@ -1,9 +1,8 @@
 """Command line: ``ebus simulate``, ``calibrate``, ``diagnose``, ``cycles``, ``effects``,
-``demo``."""
+``demo``, and the commands installed packages register (``train``, ``evaluate`` of ``agents``)."""
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -659,76 +658,6 @@ def effects(
 
 
 @app.command()
-def evaluate(
-    policy: Annotated[list[str], typer.Option(
-        help="rule:NAME (baseline, eco_driving, eco_comfort, eco_charging, eco_all), "
-             "ppo:PATH or ppo:default (the shipped agent); repeatable")],
-    env: Annotated[str, typer.Option(help="Env config: name in configs/env or a YAML path")]
-    = "sort2_day",
-    episodes: Annotated[int, typer.Option(help="Held-out days (seeds 10000, 10001, ...)")] = 20,
-    set_: Annotated[list[str] | None, typer.Option(
-        "--set", help="Override an env config key: key=value (repeatable)")] = None,
-    out: Annotated[Path, typer.Option(help="Folder for scores.json, CSV and plots")]
-    = Path("report/evaluate"),
-):
-    """Score policies on the same held-out days: energy, grid load, comfort, delay."""
-
-    def body():
-        from ebus_env.agents.evaluate import evaluate as run
-        from ebus_env.agents.evaluate import print_sheet
-        from ebus_env.agents.ppo import load_policy
-
-        console = _console()
-        sheet = run([load_policy(spec) for spec in policy], env, episodes=episodes,
-                    **_env_overrides(set_))
-        print_sheet(sheet, console)
-        for path in sheet.write(out):
-            console.print(f"[bold green]->[/] {path}")
-
-    _run(body)
-
-
-def _env_overrides(items: list[str] | None) -> dict:
-    import yaml
-
-    from ebus_env.errors import ConfigError
-
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ConfigError(f"--set needs key=value, got '{item}'.")
-        key, value = item.split("=", 1)
-        out[key.strip()] = yaml.safe_load(value)
-    return out
-
-
-@app.command()
-def train(
-    config: Annotated[Path | None, typer.Option(help="PPO config (configs/agents/ppo.yaml)")]
-    = None,
-    steps: Annotated[int | None, typer.Option(help="Total env steps (overrides the config)")]
-    = None,
-    seed: Annotated[int | None, typer.Option(help="Seed (overrides the config)")] = None,
-    out: Annotated[Path, typer.Option(help="Folder for the agent, checkpoints, TensorBoard")]
-    = Path("runs/ppo"),
-):
-    """Train PPO on EBus-v0's native vector env (stable-baselines3)."""
-
-    def body():
-        from ebus_env.agents.ppo import PPOConfig
-        from ebus_env.agents.ppo import train as run
-
-        overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed)) if v is not None}
-        cfg = PPOConfig.load(config, **overrides)
-        path = run(cfg, out, progress=False)
-        done = json.loads((path / "training.json").read_text())
-        _console().print(f"[bold green]agent ->[/] {path / 'model.zip'} ({done['steps']:,} "
-                         f"steps in {done['wall_s']:.0f} s)")
-
-    _run(body)
-
-
-@app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Folder for the report")] = Path("report"),
 ):
@@ -764,6 +693,22 @@ def study(
         _console().print(f"[bold green]report ->[/] {path}")
 
     _run(body)
+
+
+def _add_installed_commands() -> None:
+    """Commands of other installed packages: each entry point of the group
+    ``ebus_env.commands`` is a function ``register(app)`` (the top-level ``agents`` package adds
+    ``train`` and ``evaluate``). ``ebus_env`` names no package above it."""
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group="ebus_env.commands"):
+        try:
+            entry.load()(app)
+        except ImportError as exc:  # a broken plug-in must not take `ebus simulate` down
+            print(f"ebus: commands of {entry.value} not loaded ({exc}).", file=sys.stderr)
+
+
+_add_installed_commands()
 
 
 def main():  # pragma: no cover

@@ -87,7 +87,7 @@ class BusConfig:
         eff = item if isinstance(item, Effect) else resolve_effect(item)
         new = copy.deepcopy(self)
         if eff.slot is not None:
-            from ebus_env.model.signals import SLOTS
+            from ebus_env.signals import SLOTS
 
             old = new.slots.get(eff.slot, SLOTS[eff.slot].default)
             names = {p.name for p in eff.params}
@@ -106,7 +106,7 @@ class BusConfig:
         if name in new.contributions:
             new.contributions.remove(name)
             return new
-        from ebus_env.model.signals import SLOTS
+        from ebus_env.signals import SLOTS
 
         for slot_name, slot in SLOTS.items():
             if new.slots.get(slot_name, slot.default) == name:

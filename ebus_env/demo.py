@@ -17,7 +17,7 @@ from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
-from ebus_env.report import BREAKDOWN_LABELS, FIGURES, write_json
+from ebus_env.report import FIGURES, breakdown_label, write_json
 from ebus_env.simulate import run_profiles
 
 BMW_DIR = paths.data("measured", "bmw_i3_tum")
@@ -27,7 +27,7 @@ TRIPS = ("B16", "B03", "B02")
 def _tables(summary: dict) -> list[Table]:
     rows = [[label, f"{summary[key]:.{d}f}", unit] for key, label, unit, d in FIGURES
             if key in summary and isinstance(summary[key], float)]
-    energy = [[BREAKDOWN_LABELS.get(k, k), f"{v:.2f}"] for k, v in summary["breakdown_kwh"].items()]
+    energy = [[breakdown_label(k), f"{v:.2f}"] for k, v in summary["breakdown_kwh"].items()]
     return [Table(["figure", "value", "unit"], rows), Table(["energy", "kWh"], energy)]
 
 

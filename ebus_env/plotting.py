@@ -62,23 +62,3 @@ def plot_trace(result, path: str | Path | None = None, max_points: int = 20000):
         fig.savefig(path, dpi=110)
         plt.close(fig)
     return fig
-
-
-def energy_bars(summary: dict, ax=None):
-    """Horizontal bars of the energy breakdown [kWh]."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    items = {k: v for k, v in summary["breakdown_kwh"].items()
-             if k not in ("traction", "regen_recovered", "inertia_net") and abs(v) > 1e-6}
-    if ax is None:
-        _, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
-    names = list(items)
-    ax.barh(names, [items[n] for n in names], color="C0")
-    ax.invert_yaxis()
-    ax.set_xlabel("energy [kWh]")
-    ax.grid(axis="x", alpha=0.3)
-    return ax
-

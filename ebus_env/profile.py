@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ebus_env.model.signals import INPUTS
+from ebus_env.signals import INPUTS
 
 STANDING_SPEED_MPS = 0.05
 """Below this reference speed the bus is standing (doors may open)."""
@@ -25,7 +25,7 @@ class Profile:
     Parameters
     ----------
     channels
-        Input channels by canonical name (see :data:`ebus_env.model.signals.INPUTS`), SI units,
+        Input channels by canonical name (see :data:`ebus_env.signals.INPUTS`), SI units,
         each an array of length ``n_steps``. ``speed_ref_mps`` is required.
     dt_s
         Simulation time step [s].
@@ -141,10 +141,3 @@ class Profile:
                        self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
                        {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
                        samples)
-
-    def to_frame(self):
-        """The profile as a pandas DataFrame (``time_s`` first)."""
-        import pandas as pd
-
-        data = {"time_s": self.time_s, **self.channels, **self.measured}
-        return pd.DataFrame(data)

@@ -8,22 +8,28 @@ from pathlib import Path
 
 from ebus_env.outputs import write_text
 
-BREAKDOWN_LABELS = {
+TERM_LABELS = {  # the model's own energy terms; an effect's term takes the effect's label
     "traction": "traction (motor at wheels)",
     "regen_recovered": "inertia recovered by regen",
-    "aero_drag": "aerodynamic drag",
-    "rolling_resistance": "rolling resistance",
-    "road_grade": "road grade (net)",
     "inertia_net": "kinetic energy (net change)",
     "friction_brake": "friction-brake loss",
     "drivetrain_loss": "drivetrain loss",
-    "auxiliaries": "auxiliaries",
-    "cabin_hvac": "HVAC",
     "battery_ohmic_loss": "battery ohmic loss",
     "coulombic_loss": "battery coulombic loss",
     "charging": "charging (DC into the bus)",
     "charger_loss": "charger loss",
 }
+
+
+def breakdown_label(key: str) -> str:
+    """Label of an energy-breakdown term: the model's own (``TERM_LABELS``) or, for an
+    effect's contribution, the effect's (:attr:`Effect.title`)."""
+    from ebus_env.effects.base import registered_effects
+
+    if key in TERM_LABELS:
+        return TERM_LABELS[key]
+    effects = registered_effects()
+    return effects[key].title if key in effects else key
 
 FIGURES = [
     ("distance_km", "distance", "km", 2),
@@ -65,7 +71,7 @@ def summary_tables(summary: dict, title: str = ""):
     distance = summary.get("distance_km") or float("nan")
     for key, value in summary["breakdown_kwh"].items():
         per_km = value / distance if distance and distance > 0 else float("nan")
-        breakdown.add_row(BREAKDOWN_LABELS.get(key, key), f"{value:.2f}", f"{per_km:.3f}")
+        breakdown.add_row(breakdown_label(key), f"{value:.2f}", f"{per_km:.3f}")
     return figures, breakdown
 
 

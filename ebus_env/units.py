@@ -1,7 +1,9 @@
 """Units, physical constants and sign conventions, written once.
 
 The model computes in SI (m, s, kg, N, W, J, A, V, K offsets in degC) and reports in the units
-people expect (km, h, kWh, kW, km/h, %).
+people expect (km, h, kWh, kW, km/h, %). Conversions are written where they happen, beside names
+that carry their units (``speed_kmh / 3.6``, ``energy_j / J_PER_KWH``): a call would hide no more,
+and a numba kernel could not make it.
 
 Sign conventions
 ----------------
@@ -23,20 +25,5 @@ PASSENGER_MASS_KG = 68.0
 AIR_CP_J_PER_KG_K = 1005.0
 """Specific heat of air at constant pressure [J/(kg K)]."""
 
-SECONDS_PER_HOUR = 3600.0
 J_PER_KWH = 3.6e6
-
-
-def kmh_to_mps(speed_kmh):
-    """Convert [km/h] to [m/s]."""
-    return speed_kmh / 3.6
-
-
-def mps_to_kmh(speed_mps):
-    """Convert [m/s] to [km/h]."""
-    return speed_mps * 3.6
-
-
-def j_to_kwh(energy_j):
-    """Convert [J] to [kWh]."""
-    return energy_j / J_PER_KWH
+"""Joules in a kilowatt-hour."""

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ebus_env.envs.ebus import ACTION_LOW, ACTION_SPAN, ACTIONS
+from ebus_env.envs.spec import ACTION_LOW, ACTION_SPAN, ACTIONS
 from ebus_env.study.spec import BASELINE
 
 

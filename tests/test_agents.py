@@ -10,10 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ebus_env.agents.evaluate import evaluate
-from ebus_env.agents.ppo import PPOConfig, PPOPolicy, load_policy, train
-from ebus_env.agents.rules import RULES, eco_setpoint_degc, rule
+from agents.evaluate import evaluate
+from agents.ppo import PPOConfig, PPOPolicy, load_policy, train
+from agents.rules import RULES, eco_setpoint_degc, rule
 from ebus_env.envs.batch import OBSERVATIONS
+from ebus_env.errors import ConfigError
 
 DAY = {"service_h": 3.0}  # three trips with layovers: short, long enough for every feature
 
@@ -77,17 +78,40 @@ def test_a_tiny_ppo_run_learns_saves_loads_and_is_evaluated(tmp_path):
     assert np.isfinite(scores.mean("reward")) and scores.mean("distance_km") > 0
 
 
+class Ticks:
+    """A clock that advances one second per reading: training time counted in steps."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        self.now += 1.0
+        return self.now
+
+
 def test_training_stops_at_its_time_limit_and_records_what_it_did(tmp_path, monkeypatch):
+    import torch
+
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where SB3 would put a stray log
     cfg = PPOConfig.load(total_steps=1_000_000, num_envs=4, n_steps=32, batch_size=64,
-                         n_epochs=1, env_overrides={"service_h": 0.3}, time_limit_min=0.02)
-    out = train(cfg, tmp_path / "run")
+                         n_epochs=1, env_overrides={"service_h": 0.3}, time_limit_min=0.75)
+    out = train(cfg, tmp_path / "run", clock=Ticks())
     done = json.loads((out / "training.json").read_text())
-    assert 0 < done["steps"] < cfg.total_steps and done["wall_s"] < 30
+    # the deadline lies 45 ticks after training starts: the 45th vector step (4 envs) ends it
+    assert done["steps"] == 45 * 4 and done["stopped_by_time_limit"]
+    assert done["torch_threads"] == 1 and torch.get_num_threads() == 1
     assert (out / "model.zip").exists()
-    curve = pd.read_csv(out / "progress.csv")
-    assert len(curve) >= 1 and curve["time/total_timesteps"].iloc[-1] <= done["steps"]
+    curve = pd.read_csv(out / "progress.csv")  # one update: the first 32 vector steps
+    assert curve["time/total_timesteps"].tolist() == [32 * 4]
     assert not list(tmp_path.glob("SB3-*"))
+
+
+@pytest.mark.parametrize("key, value", [("total_steps", 0), ("num_envs", 0),
+                                        ("torch_threads", 0), ("time_limit_min", -1.0),
+                                        ("gamma", 1.5)])
+def test_a_ppo_config_out_of_range_is_one_clear_error(key, value):
+    with pytest.raises(ConfigError, match=f"{key}="):
+        PPOConfig.load(**{key: value})
 
 
 def test_the_shipped_agent_still_beats_the_best_rule_on_held_out_days():
@@ -104,7 +128,7 @@ def test_the_shipped_agent_still_beats_the_best_rule_on_held_out_days():
 
 
 def test_paired_difference_cancels_what_the_days_share():
-    from ebus_env.agents.evaluate import KEYS, PolicyScores, paired_difference
+    from agents.evaluate import KEYS, PolicyScores, paired_difference
 
     day = np.linspace(-50.0, 50.0, 6)[:, None] * np.ones((1, len(KEYS)))  # large day effect
     a = PolicyScores("a", day + 1.0 + 0.1 * np.array([1, -1, 1, -1, 1, -1])[:, None])
@@ -129,11 +153,54 @@ def test_evaluate_command_prints_and_writes(tmp_path):
     assert bad.exit_code == 2 and "No rule 'nope'" in bad.output and "eco_all" in bad.output
 
 
+def ebus(*args):
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_agent_commands_refuse_bad_input_in_one_line_before_the_run(tmp_path):
+    bad_yaml = tmp_path / "ppo.yaml"
+    bad_yaml.write_text("num_envs: [4\nseed: 0\n")
+    some_file = tmp_path / "scores.json"
+    some_file.write_text("{}")
+    cases = [(["train", "--steps", 0, "--out", tmp_path / "t"], "total_steps=0"),
+             (["train", "--config", bad_yaml, "--out", tmp_path / "t"], "not valid YAML"),
+             (["evaluate", "--policy", "rule:baseline", "--episodes", 0, "--out", tmp_path],
+              "--episodes 0"),
+             (["evaluate", "--policy", "rule:baseline", "--out", some_file], "is a file")]
+    for args, message in cases:
+        result = ebus(*args)
+        assert result.exit_code == 2, result.output
+        text = " ".join(result.output.split())  # rich wraps long lines
+        assert message in text and "Traceback" not in text
+    assert not (tmp_path / "t").exists() and some_file.read_text() == "{}"
+
+
+def test_evaluate_writes_a_folder_of_its_own_by_default(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = ebus("evaluate", "--policy", "rule:baseline", "--episodes", 1, "--set",
+                  "service_h=0.3")
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "runs" / "evaluate" / "scores.json").exists()
+    assert not (tmp_path / "report").exists()  # the demo's report folder stays the demo's
+
+
+def test_ppo_without_the_rl_extra_names_the_extra(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # as if not installed
+    result = ebus("evaluate", "--policy", "ppo:default", "--episodes", 1)
+    assert result.exit_code == 2 and "pip install 'ebus-env[rl]'" in " ".join(result.output.split())
+
+
 def fleet_peak(rule_name):
     import gymnasium as gym
 
     import ebus_env  # noqa: F401
-    from ebus_env.agents.rules import FleetChargingRule
+    from agents.rules import FleetChargingRule
 
     env = gym.make("EBusFleet-v0", config="fleet_sort2",
                    lines=[{"config": "sort2_day", "buses": 4, "service_h": 3.0}])
@@ -156,3 +223,19 @@ def test_fleet_charging_rules_order_the_site_peak_and_share_by_need():
     obs[0], obs[len(OBSERVATIONS)] = 0.5, 0.9  # bus 0 emptier than bus 1
     action = policy.predict(obs)[0].reshape(-1, 5)
     assert action[0, 3] > action[1, 3]
+
+
+def test_the_agent_commands_plug_into_ebus_through_an_entry_point():
+    import tomllib
+    from pathlib import Path
+
+    import typer
+
+    from agents.cli import register
+
+    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert pyproject["project"]["entry-points"]["ebus_env.commands"] == {
+        "agents": "agents.cli:register"}
+    app = typer.Typer()
+    register(app)
+    assert {c.callback.__name__ for c in app.registered_commands} == {"train", "evaluate"}

@@ -249,6 +249,7 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     assert missing.exit_code == 2 and "does not exist" in missing.output
 
 
+@pytest.mark.slow
 def test_bmw_trip_calibration_improves_on_the_defaults():
     """Real data: the BMW i3 on trip B16 (not a reserved trip)."""
     model = load_bus("bmw_i3").build()

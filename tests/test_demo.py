@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from ebus_env.demo import run_demo
 
 
+@pytest.mark.slow
 def test_demo_writes_a_self_contained_report(tmp_path):
     page = run_demo(tmp_path)
     html = page.read_text()

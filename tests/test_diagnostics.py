@@ -111,6 +111,7 @@ def test_held_out_blocks_alternate_and_keep_the_pack_temperature_running():
     assert fit["rmse_pct"] < 0.06  # 0.1 % quantisation and 0.02 % noise
 
 
+@pytest.mark.slow
 def test_data_problems_are_flagged_and_their_windows_left_out(tmp_path):
     """The log of a day loses its charging flag for one layover: the SoC rises while the bus
     stands, by the log, unplugged."""
@@ -140,7 +141,8 @@ def test_the_shipped_hidden_days_are_what_the_generator_makes():
     assert set(manifest) == {c.name for c in hidden.CASES}
 
 
-@pytest.mark.parametrize("name", LIBRARY_CASES)
+@pytest.mark.parametrize("name", [  # one case in the fast suite, every case in test-all
+    pytest.param(n, marks=() if n == "cabin_heating" else pytest.mark.slow) for n in LIBRARY_CASES])
 def test_hidden_effect_ranks_first_with_its_strength(name):
     case = hidden.case(name)
     d = diagnose(hidden.baseline_bus(case), hidden_log(name))
@@ -210,6 +212,7 @@ def test_bmw_winter_trips_without_heating_name_cabin_heating(bmw_no_heating):
     assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
 
 
+@pytest.mark.slow
 def test_bmw_trip_b02_capacity_is_a_data_problem():
     d = diagnose(load_bus("bmw_i3"), bmw("B02"))
     capacity = next(i for i in d.data_issues if "capacity" in i["issue"])
@@ -262,6 +265,7 @@ def test_html_report_renders_in_headless_chromium(cabin_report):
     assert shot.stat().st_size > 50_000  # a page of plots, not a blank one
 
 
+@pytest.mark.slow
 def test_command_line_diagnose(tmp_path):
     from typer.testing import CliRunner
 

@@ -21,76 +21,85 @@ def both(name, site="main"):
 
 @pytest.mark.parametrize("fn", both("aero_drag"))
 def test_aero_drag_hand_value_and_cube_law(fn):
+    def drag_n(speed_mps):
+        return fn(speed_mps=speed_mps, drag_coef=0.7, frontal_area_m2=7.5,
+                  air_density_kg_per_m3=1.2)
+
     # 1/2 * 1.2 * 0.7 * 7.5 * 10^2 = 315 N
-    assert fn(10.0, 0.7, 7.5, 1.2) == pytest.approx(315.0)
-    assert fn(0.0, 0.7, 7.5, 1.2) == 0.0
+    assert drag_n(10.0) == pytest.approx(315.0)
+    assert drag_n(0.0) == 0.0
     # power F v: doubling v multiplies it by 8
-    assert fn(20.0, 0.7, 7.5, 1.2) * 20.0 == pytest.approx(8 * fn(10.0, 0.7, 7.5, 1.2) * 10.0)
+    assert drag_n(20.0) * 20.0 == pytest.approx(8 * drag_n(10.0) * 10.0)
 
 
 @pytest.mark.parametrize("fn", both("rolling_resistance"))
 def test_rolling_resistance(fn):
-    assert fn(5.0, 15000.0, 0.0, 0.008) == pytest.approx(15000 * GRAVITY_MPS2 * 0.008)
-    assert fn(0.0, 15000.0, 0.0, 0.008) == 0.0  # a standing bus
+    def force_n(speed_mps, grade_frac=0.0):
+        return fn(speed_mps=speed_mps, mass_kg=15000.0, grade_frac=grade_frac, rolling_coef=0.008)
+
+    assert force_n(5.0) == pytest.approx(15000 * GRAVITY_MPS2 * 0.008)
+    assert force_n(0.0) == 0.0  # a standing bus
     # on a 10 % grade the normal force is m g cos(alpha)
-    assert fn(5.0, 15000.0, 0.1, 0.008) == pytest.approx(
-        15000 * GRAVITY_MPS2 * 0.008 * math.cos(math.atan(0.1)))
+    assert force_n(5.0, 0.1) == pytest.approx(15000 * GRAVITY_MPS2 * 0.008 * math.cos(math.atan(0.1)))
 
 
 @pytest.mark.parametrize("fn", both("road_grade"))
 def test_road_grade_signs(fn):
-    up = fn(15000.0, 0.05)
+    up = fn(mass_kg=15000.0, grade_frac=0.05)
     assert up == pytest.approx(15000 * GRAVITY_MPS2 * math.sin(math.atan(0.05)))
-    assert fn(15000.0, -0.05) == pytest.approx(-up)
-    assert fn(15000.0, 0.0) == 0.0
+    assert fn(mass_kg=15000.0, grade_frac=-0.05) == pytest.approx(-up)
+    assert fn(mass_kg=15000.0, grade_frac=0.0) == 0.0
 
 
 @pytest.mark.parametrize("fn", both("passenger_load"))
 def test_passenger_load_measured_count_wins(fn):
-    assert fn(math.nan, 0.5, 80.0) == 40.0
-    assert fn(12.0, 0.5, 80.0) == 12.0
+    assert fn(passenger_count=math.nan, load_frac=0.5, max_passengers=80.0) == 40.0
+    assert fn(passenger_count=12.0, load_frac=0.5, max_passengers=80.0) == 12.0
 
 
 @pytest.mark.parametrize("fn", both("passenger_mass"))
 def test_passenger_mass(fn):
-    assert fn(40.0, 68.0) == 2720.0
+    assert fn(passengers=40.0, passenger_mass_kg=68.0) == 2720.0
 
 
 @pytest.mark.parametrize("fn", both("regen_cutoff"))
 def test_regen_cutoff(fn):
-    assert fn(1.4, 1.5, 1.0) == 0.0
-    assert fn(1.5, 1.5, 1.0) == 0.0
-    assert fn(1.6, 1.5, 0.8) == 0.8
+    assert fn(speed_mps=1.4, cutoff_speed_mps=1.5, max_share=1.0) == 0.0
+    assert fn(speed_mps=1.5, cutoff_speed_mps=1.5, max_share=1.0) == 0.0
+    assert fn(speed_mps=1.6, cutoff_speed_mps=1.5, max_share=0.8) == 0.8
 
 
 @pytest.mark.parametrize("fn", both("cccv_taper"))
 def test_cccv_taper_decays_with_negative_exponent(fn):
-    cc, taper = fn(0.80, 300.0, 87.5, 0.23, 3.0)
-    assert cc == 900.0 and taper == 1.0
+    def taper(soc_frac):
+        return fn(soc_frac=soc_frac, capacity_ah=300.0, cv_soc_pct=87.5, decay_per_pct=0.23,
+                  cc_c_rate=3.0)
+
+    assert taper(0.80) == (900.0, 1.0)
     # docs/physics.md §5.4: exp(-0.23 (SoC - 87.5)) = 0.563 at 90 %, 0.178 at 95 %, 0.056 at 100 %
-    assert fn(0.90, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.563, abs=1e-3)
-    assert fn(0.95, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.178, abs=1e-3)
-    assert fn(1.00, 300.0, 87.5, 0.23, 3.0)[1] == pytest.approx(0.056, abs=1e-3)
-    tapers = [fn(s, 300.0, 87.5, 0.23, 3.0)[1] for s in np.linspace(0.85, 1.0, 31)]
+    assert taper(0.90)[1] == pytest.approx(0.563, abs=1e-3)
+    assert taper(0.95)[1] == pytest.approx(0.178, abs=1e-3)
+    assert taper(1.00)[1] == pytest.approx(0.056, abs=1e-3)
+    tapers = [taper(s)[1] for s in np.linspace(0.85, 1.0, 31)]
     assert np.all(np.diff(tapers) <= 0)
 
 
 @pytest.mark.parametrize("fn", both("static_rcd"))
 def test_static_rcd(fn):
-    assert fn(0.2, 1.5) == pytest.approx((0.8, 1.3))
-    assert fn(0.0, 1.5) == (1.0, 1.0)
+    assert fn(rcd_frac=0.2, resistance_growth=1.5) == pytest.approx((0.8, 1.3))
+    assert fn(rcd_frac=0.0, resistance_growth=1.5) == (1.0, 1.0)
 
 
 def test_auxiliaries_and_schedule():
     from ebus_env.effects.tables import TableData
 
     for fn in both("auxiliaries"):
-        assert fn(4000.0) == 4000.0
+        assert fn(base_power_w=4000.0) == 4000.0
     table = TableData((0, 7, 8, 9, 24), (0, 0, 2000, 0, 0)).encode("schedule_w")
     for fn in both("aux_schedule"):
-        assert fn(3.0, 1.0, table) == 0.0
-        assert fn(8.0, 1.0, table) == 2000.0
-        assert fn(7.5, 2.0, table) == pytest.approx(2000.0)
+        assert fn(time_of_day_h=3.0, scale=1.0, schedule_w=table) == 0.0
+        assert fn(time_of_day_h=8.0, scale=1.0, schedule_w=table) == 2000.0
+        assert fn(time_of_day_h=7.5, scale=2.0, schedule_w=table) == pytest.approx(2000.0)
 
 
 CABIN = dict(setpoint_degc=20.0, deadband_k=1.0, ua_w_per_k=400.0, heat_capacity_j_per_k=1e6,
@@ -103,7 +112,8 @@ CABIN = dict(setpoint_degc=20.0, deadband_k=1.0, ua_w_per_k=400.0, heat_capacity
 
 def cabin(fn, cabin_temp, ambient, passengers=0.0, door=0.0, solar=0.0, **over):
     p = {**CABIN, **over}
-    return fn(cabin_temp, ambient, passengers, door, solar, 0.0, 0.1, *p.values())
+    return fn(cabin_temp_degc=cabin_temp, ambient_degc=ambient, passengers=passengers,
+              door_open=door, solar_w_per_m2=solar, cabin_heat_w=0.0, dt_s=0.1, **p)
 
 
 @pytest.mark.parametrize("fn", both("cabin_hvac"))
@@ -146,9 +156,9 @@ MOTOR = dict(wheel_radius_m=0.48, gear_ratio=5.67, gearbox_efficiency=0.96,
 
 @pytest.mark.parametrize("fn", both("efficiency_map", "limits"))
 def test_motor_limits(fn):
-    traction, regen = fn(0.0, *MOTOR.values())
+    traction, regen = fn(speed_mps=0.0, **MOTOR)
     assert traction == pytest.approx(2800 * 5.67 * 0.96 / 0.48)  # torque-limited at rest
-    traction, regen = fn(20.0, *MOTOR.values())
+    traction, regen = fn(speed_mps=20.0, **MOTOR)
     assert traction == pytest.approx(200e3 * 0.96 / 20.0)  # power-limited
     assert regen == pytest.approx(150e3 / (0.96 * 20.0))
 
@@ -156,10 +166,12 @@ def test_motor_limits(fn):
 def test_map_power_quadrants_and_losses():
     loss_map = drivetrain.LOSS_MAP.resolve().encode("loss_map")
     for fn in both("efficiency_map", "power"):
-        args = (0.48, 5.67, 0.96, 2800.0, 3000.0, loss_map)
-        assert fn(0.0, 10.0, *args) == 0.0  # no torque, no power
-        motoring = fn(5000.0, 10.0, *args)
-        generating = fn(-5000.0, 10.0, *args)
+        args = dict(speed_mid_mps=10.0, wheel_radius_m=0.48, gear_ratio=5.67,
+                    gearbox_efficiency=0.96, peak_torque_nm=2800.0, max_motor_speed_rpm=3000.0,
+                    loss_map=loss_map)
+        assert fn(motor_force_n=0.0, **args) == 0.0  # no torque, no power
+        motoring = fn(motor_force_n=5000.0, **args)
+        generating = fn(motor_force_n=-5000.0, **args)
         wheel = 5000.0 * 10.0
         assert wheel / 0.96 < motoring < wheel / 0.80  # losses on top of the gearbox
         assert 0.70 * wheel * 0.96 < -generating < wheel * 0.96
@@ -169,8 +181,10 @@ def test_map_power_quadrants_and_losses():
 
 def test_constant_efficiency_power():
     for fn in both("constant_efficiency", "power"):
-        assert fn(1000.0, 10.0, 0.48, 5.67, 0.96, 0.9) == pytest.approx(1e4 / 0.96 / 0.9)
-        assert fn(-1000.0, 10.0, 0.48, 5.67, 0.96, 0.9) == pytest.approx(-1e4 * 0.96 * 0.9)
+        assert fn(motor_force_n=1000.0, speed_mid_mps=10.0, wheel_radius_m=0.48, gear_ratio=5.67,
+                  gearbox_efficiency=0.96, motor_efficiency=0.9) == pytest.approx(1e4 / 0.96 / 0.9)
+        assert fn(motor_force_n=-1000.0, speed_mid_mps=10.0, wheel_radius_m=0.48, gear_ratio=5.67,
+                  gearbox_efficiency=0.96, motor_efficiency=0.9) == pytest.approx(-1e4 * 0.96 * 0.9)
 
 
 def test_efficiency_map_converts_to_losses():
@@ -204,12 +218,12 @@ LIMITS = {k: BATTERY[k] for k in ("cells_series", "coulombic_efficiency", "soc_m
 
 @pytest.mark.parametrize("fn", both("rint_battery", "pack"))
 def test_battery_pack_capacity_and_resistance(fn):
-    q, r = fn(1.0, 1.0, 25.0, *PACK.values())
+    q, r = fn(capacity_factor=1.0, resistance_factor=1.0, battery_temp_degc=25.0, **PACK)
     assert q == 300.0 and r == pytest.approx(1e-3 * 204 / 3 * 1.2)
     # ageing shrinks capacity and raises resistance; cold raises resistance (Arrhenius)
-    q_aged, r_aged = fn(0.8, 1.3, 25.0, *PACK.values())
+    q_aged, r_aged = fn(capacity_factor=0.8, resistance_factor=1.3, battery_temp_degc=25.0, **PACK)
     assert q_aged == 240.0 and r_aged == pytest.approx(1.3 * r)
-    r_cold = fn(1.0, 1.0, 0.0, *PACK.values())[1]
+    r_cold = fn(capacity_factor=1.0, resistance_factor=1.0, battery_temp_degc=0.0, **PACK)[1]
     assert r_cold / r == pytest.approx(math.exp(25000 / 8.314 * (1 / 273.15 - 1 / 298.15)))
 
 
@@ -217,35 +231,42 @@ def test_battery_pack_capacity_and_resistance(fn):
 def test_battery_state(fn):
     ocv_table, r_table = battery_tables()
     r_pack = 1e-3 * 204 / 3 * 1.2
-    ocv, r, charge_a, charge_w, discharge_w = fn(0.5, 300.0, r_pack, 0.1, *LIMITS.values(),
-                                                 ocv_table, r_table)
+    def state(soc_frac, **limits):
+        return fn(soc_frac=soc_frac, capacity_ah=300.0, pack_resistance_ohm=r_pack, dt_s=0.1,
+                  **{**LIMITS, **limits}, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)
+
+    ocv, r, charge_a, charge_w, discharge_w = state(0.5)
     assert ocv == pytest.approx(204 * 3.270)  # A123 OCV at 50 %
     assert r == pytest.approx(r_pack)  # f(50 %) = 1
     assert charge_a == 900.0 and charge_w == pytest.approx(900 * (ocv + r * 900))
     assert discharge_w == pytest.approx(1500 * (ocv - r * 1500))
     # the SoC factor: an empty cell has the larger resistance
-    assert fn(0.0, 300.0, r_pack, 0.1, *LIMITS.values(), ocv_table, r_table)[1] > r
+    assert state(0.0)[1] > r
     # a full pack accepts no charge; an empty one gives no power
-    assert fn(1.0, 300.0, r_pack, 0.1, *LIMITS.values(), ocv_table, r_table)[2] == 0.0
-    empty = {**LIMITS, "soc_min_frac": 0.1}
-    assert fn(0.05, 300.0, r_pack, 0.1, *empty.values(), ocv_table, r_table)[4] == 0.0
+    assert state(1.0)[2] == 0.0
+    assert state(0.05, soc_min_frac=0.1)[4] == 0.0
 
 
 @pytest.mark.parametrize("fn", both("rint_battery", "update"))
 def test_battery_update_current_and_soc(fn):
     ocv, r, q = 660.0, 0.08, 300.0
-    current, voltage, soc_next, ohmic, coulombic, shortfall = fn(100e3, 0.5, ocv, r, q, 0.1, 0.998)
+    current, voltage, soc_next, ohmic, coulombic, shortfall = fn(battery_power_w=100e3, soc_frac=0.5,
+                                                                 ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
+                                                                 dt_s=0.1, coulombic_efficiency=0.998)
     assert current * voltage == pytest.approx(100e3)
     assert voltage == pytest.approx(ocv - r * current)
     assert ohmic == pytest.approx(r * current**2)
     assert soc_next == pytest.approx(0.5 - current * 0.1 / (3600 * q))
     assert coulombic == 0.0 and shortfall == 0.0
     # charging: coulombic efficiency applies to the stored charge
-    current, _, soc_next, _, coulombic, _ = fn(-100e3, 0.5, ocv, r, q, 0.1, 0.998)
+    current, _, soc_next, _, coulombic, _ = fn(battery_power_w=-100e3, soc_frac=0.5, ocv_v=ocv,
+                                               resistance_ohm=r, capacity_ah=q, dt_s=0.1,
+                                               coulombic_efficiency=0.998)
     assert current < 0 and soc_next == pytest.approx(0.5 - 0.998 * current * 0.1 / (3600 * q))
     assert coulombic == pytest.approx(0.002 * ocv * -current)
     # beyond the pack's maximum power OCV^2 / 4R the shortfall is reported, not hidden
-    *_, shortfall = fn(2e6, 0.5, ocv, r, q, 0.1, 0.998)
+    *_, shortfall = fn(battery_power_w=2e6, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
+                       dt_s=0.1, coulombic_efficiency=0.998)
     assert shortfall == pytest.approx(2e6 - ocv**2 / (4 * r))
 
 
@@ -256,18 +277,18 @@ def test_grid_charger(fn):
                 cv_taper=1.0, charge_current_max_a=900.0, ocv_v=ocv, resistance_ohm=r,
                 motor_power_w=0.0, dc_load_w=5000.0, time_s=0.0, power_kw=450.0,
                 efficiency=0.95, pulse_period_s=10.0, pulse_duty=1.0, pulse_low_frac=0.0)
-    dc, grid = fn(*base.values())
+    dc, grid = fn(**base)
     assert dc == pytest.approx(450e3) and grid == pytest.approx(450e3 / 0.95)
-    assert fn(*{**base, "charger_connected": 0.0}.values()) == (0.0, 0.0)
+    assert fn(**{**base, "charger_connected": 0.0}) == (0.0, 0.0)
     # the profile's rating wins over the parameter; CC-limited below it
-    dc, _ = fn(*{**base, "charger_rating_w": 18e3}.values())
+    dc, _ = fn(**{**base, "charger_rating_w": 18e3})
     assert dc == pytest.approx(18e3)
-    dc, _ = fn(*{**base, "cc_current_a": 100.0}.values())
+    dc, _ = fn(**{**base, "cc_current_a": 100.0})
     assert dc == pytest.approx(100 * (ocv + r * 100) + 5000.0)
     # pulsed: off in the second half of each period
     pulsed = {**base, "pulse_duty": 0.5}
-    assert fn(*{**pulsed, "time_s": 2.0}.values())[0] == pytest.approx(450e3)
-    assert fn(*{**pulsed, "time_s": 7.0}.values())[0] == pytest.approx(5000.0)
+    assert fn(**{**pulsed, "time_s": 2.0})[0] == pytest.approx(450e3)
+    assert fn(**{**pulsed, "time_s": 7.0})[0] == pytest.approx(5000.0)
 
 
 def test_lookups_interpolate_and_clamp():
@@ -314,10 +335,14 @@ def test_tables_off_any_small_grid_are_approximated_not_exploded():
 
 @pytest.mark.parametrize("fn", both("regen_soc_limit"))
 def test_regen_soc_limit_derates_at_high_soc(fn):
-    assert fn(1.0, 0.5, 1.5, 1.0, 90.0) == 0.0  # below the cutoff
-    assert fn(5.0, 0.5, 1.5, 1.0, 90.0) == 1.0
-    assert fn(5.0, 0.95, 1.5, 1.0, 90.0) == pytest.approx(0.5)
-    assert fn(5.0, 1.0, 1.5, 1.0, 90.0) == 0.0
+    def share(speed_mps, soc_frac):
+        return fn(speed_mps=speed_mps, soc_frac=soc_frac, cutoff_speed_mps=1.5, max_share=1.0,
+                  derate_soc_pct=90.0)
+
+    assert share(1.0, 0.5) == 0.0  # below the cutoff
+    assert share(5.0, 0.5) == 1.0
+    assert share(5.0, 0.95) == pytest.approx(0.5)
+    assert share(5.0, 1.0) == 0.0
 
 
 @pytest.mark.parametrize("fn", both("passenger_schedule"))
@@ -325,15 +350,40 @@ def test_passenger_schedule_peaks(fn):
     from ebus_env.effects.vehicle import COMMUTER_SHAPE
 
     table = COMMUTER_SHAPE.resolve().encode("load_shape")
-    assert fn(math.nan, 8.0, 0.2, 0.9, 100.0, table) == pytest.approx(90.0)
-    assert fn(math.nan, 12.0, 0.2, 0.9, 100.0, table) == pytest.approx(100 * (0.2 + 0.7 * 0.4))
-    assert fn(math.nan, 2.0, 0.2, 0.9, 100.0, table) == pytest.approx(20.0)
-    assert fn(33.0, 8.0, 0.2, 0.9, 100.0, table) == 33.0
+    assert fn(passenger_count=math.nan, time_of_day_h=8.0, base_frac=0.2, peak_frac=0.9,
+              max_passengers=100.0, load_shape=table) == pytest.approx(90.0)
+    assert fn(passenger_count=math.nan, time_of_day_h=12.0, base_frac=0.2, peak_frac=0.9,
+              max_passengers=100.0, load_shape=table) == pytest.approx(100 * (0.2 + 0.7 * 0.4))
+    assert fn(passenger_count=math.nan, time_of_day_h=2.0, base_frac=0.2, peak_frac=0.9,
+              max_passengers=100.0, load_shape=table) == pytest.approx(20.0)
+    assert fn(passenger_count=33.0, time_of_day_h=8.0, base_frac=0.2, peak_frac=0.9, max_passengers=100.0,
+              load_shape=table) == 33.0
 
 
 @pytest.mark.parametrize("fn", both("ambient_battery"))
 def test_ambient_battery_follows_the_ambient(fn):
-    temp, nxt = fn(20.0, 0.0, 3600.0, 1.0, 0.0)  # one time constant in one step
-    assert temp == 20.0 and nxt == pytest.approx(0.0)
-    temp, nxt = fn(20.0, 0.0, 36.0, 1.0, 0.0)
+    temp, nxt = fn(cell_temp_degc=20.0, ambient_degc=0.0, dt_s=3600.0, time_constant_h=1.0)
+    assert temp == 20.0 and nxt == pytest.approx(0.0)  # one time constant in one step
+    temp, nxt = fn(cell_temp_degc=20.0, ambient_degc=0.0, dt_s=36.0, time_constant_h=1.0)
     assert nxt == pytest.approx(20.0 - 20.0 * 0.01)
+
+
+def test_an_effect_offers_handles_by_name_and_unit():
+    from ebus_env.effects.base import Param, effect
+    from ebus_env.errors import ConfigError
+
+    assert get_effect("grid_charger").handles["charge_pulse_duty"] == "pulse_duty"
+    assert get_effect("cabin_hvac").handles == {"cabin_setpoint_degc": "setpoint_degc"}
+
+    def heater(heater_kw):
+        return 1e3 * heater_kw
+
+    def declare(**handles):
+        return effect("my_heater", sink="dc_load_w", register_effect=False, handles=handles,
+                      params=[Param("heater_kw", 5.0, "kW", (0.0, 20.0), "Heater power")])(heater)
+
+    assert declare().handles == {} and declare(charger_power_kw="heater_kw").handles
+    with pytest.raises(ConfigError, match="Unknown handle.*'cabin_setpoint'.*cabin_setpoint_degc"):
+        declare(cabin_setpoint="heater_kw")
+    with pytest.raises(ValueError, match="'charge_pulse_duty' is in 1; parameter 'heater_kw' in kW"):
+        declare(charge_pulse_duty="heater_kw")

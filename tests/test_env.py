@@ -12,7 +12,7 @@ import pytest
 import ebus_env  # noqa: F401  (registers the environments)
 from ebus_env.envs import reference
 from ebus_env.envs.course import course_from_cycle
-from ebus_env.envs.ebus import ACTION_NAMES, ACTIONS, CONFIG_DIR, checked_actions, physical
+from ebus_env.envs.spec import ACTION_NAMES, ACTIONS, CONFIG_DIR, checked_actions, physical
 from ebus_env.errors import ConfigError, LogError
 from ebus_env.profile import Profile
 
@@ -307,7 +307,7 @@ def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
     """A climate and a month set the day's ambient from monthly normals (mean of the daily
     minimum and maximum, half their difference). January in Gothenburg costs more HVAC
     energy than May; in July in Barcelona the HVAC cools: a lower setpoint costs more."""
-    from ebus_env.envs.ebus import EnvConfig
+    from ebus_env.envs.spec import EnvConfig
 
     cfg = EnvConfig(climate="barcelona", month=7)
     assert (cfg.ambient_mean_degc, cfg.ambient_amplitude_k) == (26.0, 3.0)
@@ -339,7 +339,7 @@ def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
     ({"climate": {"min_degc": [5] * 12, "max_degc": [0] * 12}, "month": 1}, "must not exceed"),
 ])
 def test_bad_climate_keys_raise_clear_errors(keys, words):
-    from ebus_env.envs.ebus import EnvConfig
+    from ebus_env.envs.spec import EnvConfig
 
     with pytest.raises(ConfigError, match=words):
         EnvConfig.load("sort2_day" if "ambient_mean_degc" not in keys else None,
@@ -374,3 +374,17 @@ def test_a_measured_logs_speed_profile_is_a_line(tmp_path):
     (tmp_path / "bad.csv").write_text("time_s,velocity\n0,1\n1,2\n")
     with pytest.raises(LogError, match="No speed column.*bad.csv.*Fix"):
         gym.make("EBus-v0", log=str(tmp_path / "bad.csv"))
+
+
+def test_a_bus_without_a_charger_effect_is_refused_by_name(tmp_path):
+    import yaml
+
+    from ebus_env.errors import ConfigError
+
+    data = yaml.safe_load((CONFIG_DIR.parent / "bus" / "12m.yaml").read_text())
+    data["slots"] = {**data.get("slots", {}), "charger": "none"}
+    data["params"].pop("grid_charger")
+    bus = tmp_path / "no_charger.yaml"
+    bus.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="no effects offer the pulse duty cycle.*grid_charger"):
+        gym.make("EBus-v0", config="sort2_day", bus=str(bus), service_h=0.5)

@@ -15,8 +15,9 @@ import pytest
 
 from ebus_env.cycles import service_day
 from ebus_env.errors import CompositionError, ConfigError
-from ebus_env.model import codegen
-from ebus_env.model.model import build_model, differing_columns, run_chunks
+from ebus_env.model.lanes import lane_source
+from ebus_env.model.model import build_model, differing_columns
+from ebus_env.model.threads import run_chunks
 from tests.conftest import DT, constant_profile
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -64,7 +65,7 @@ def test_lane_loop_shares_what_does_not_vary(model12, mixed_profile):
     once per call, the vehicle body once per group, the passenger load once per step and the
     road load per lane and step. Still the scalar loop's bits."""
     i = model12.param_index("vehicle_body.curb_mass_kg")
-    source = codegen.lane_source(model12.layout, {i})
+    source = lane_source(model12.layout, {i})
     loop = source[source.index("def run_lanes("):source.index("def run_sample_lanes(")]
     assert re.search(r"\n {4}auxiliaries_w = fx__auxiliaries__main\(", loop)
     assert re.search(r"\n {12}W\[\d+, g\], .* = fx__vehicle_body__main\(P\[0, g\]", loop)

@@ -24,7 +24,7 @@ from ebus_env.config import BusConfig
 from ebus_env.diagnostics.residual import window_power
 from ebus_env.effects.base import Effect, registered_effects
 from ebus_env.errors import EbusError
-from ebus_env.model.signals import SLOTS
+from ebus_env.signals import SLOTS
 
 PARAM_STEP = 0.10  # of the range
 VISIBLE_W = 1.0  # a signature below this everywhere changes nothing here

@@ -154,15 +154,3 @@ def improvement(rungs: list[Rung]) -> float:
     """Relative fall of held-out NRMSE from the first rung to the last."""
     before, after = rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"]
     return float(1.0 - after / before) if before > 0 else float("nan")
-
-
-def ladder_table(rungs: list[Rung]) -> list[dict]:
-    """Rows for the console and HTML tables."""
-    rows = []
-    for r in rungs:
-        rows.append({"model": r.label, "NRMSE cal": r.calibration["nrmse"],
-                     "NRMSE held-out": r.held_out["nrmse"],
-                     "RMSE cal [%]": r.calibration["rmse_pct"],
-                     "RMSE held-out [%]": r.held_out["rmse_pct"]})
-    return rows
-

@@ -11,7 +11,7 @@ Two kinds:
   (``road_force_n``, ``dc_load_w``, ``mass_kg``, ``cabin_heat_w``), optionally followed by extra
   signals it provides (``returns``);
 * a **slot** implementation returns the signals its slot's call site requires
-  (see :data:`ebus_env.model.signals.SLOTS`), optionally followed by extras.
+  (see :data:`ebus_env.signals.SLOTS`), optionally followed by extras.
 
 An effect that owns a state (``State``) reads its current value by name and returns
 ``<state>_next``. The model compiles all chosen effects into one step function, so effect
@@ -42,7 +42,7 @@ import numba
 
 from ebus_env.effects.tables import Table
 from ebus_env.errors import ConfigError, unknown_name
-from ebus_env.model.signals import SINKS, SLOTS, Input
+from ebus_env.signals import HANDLES, SINKS, SLOTS, Input
 
 
 @dataclass(frozen=True)
@@ -131,6 +131,7 @@ class Effect:
     refines: str | None = None
     label: str = ""
     doc: str = ""
+    handles: dict[str, str] = field(default_factory=dict)
     _jitted: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
@@ -171,6 +172,13 @@ class Effect:
                     )
         for name in self.key_params:
             self.param(name)
+        for handle, name in self.handles.items():
+            if handle not in HANDLES:
+                raise unknown_name(f"handle of effect '{self.name}'", handle, HANDLES)
+            if self.param(name).unit != HANDLES[handle].unit:
+                raise ValueError(f"Effect '{self.name}': handle '{handle}' is in "
+                                 f"{HANDLES[handle].unit}; parameter '{name}' in "
+                                 f"{self.param(name).unit}.")
         for state in self.states:
             if not any(state.name + "_next" in c.returns for c in self.calls.values()):
                 raise ValueError(
@@ -247,6 +255,7 @@ def effect(
     key_params: Sequence[str] = (),
     refines: str | None = None,
     label: str = "",
+    handles: dict[str, str] | None = None,
     register_effect: bool = True,
 ):
     """Decorator that turns a function into a registered single-call effect.
@@ -257,7 +266,9 @@ def effect(
     them; default: the first). A slot effect that ``refines`` another adds physics to it (the
     same slot, more detail): diagnosis offers it as a missing effect where the simpler one
     fills the slot. ``label`` names the physics in words for reports ("cabin heating and
-    cooling"; default: the name). The decorated name is the :class:`Effect` itself; its function
+    cooling"; default: the name). ``handles`` offer parameters to controllers by the names of
+    :data:`ebus_env.signals.HANDLES` (``{"charge_pulse_duty": "pulse_duty"}``: an env's
+    ECO-charging action sets it). The decorated name is the :class:`Effect` itself; its function
     stays reachable as ``effect.calls["main"].function`` for the uncompiled run.
     """
 
@@ -282,6 +293,7 @@ def effect(
             refines=refines,
             label=label,
             doc=inspect.getdoc(function) or "",
+            handles=dict(handles or {}),
         )
         if register_effect:
             register(eff)

@@ -189,8 +189,9 @@ def managed_temperature(temperature_degc):
     State("cell_temp_degc", "degC", "Pack temperature without thermal management",
           lambda p, x: x.get("ambient_degc", 20.0) + p["initial_offset_k"]),
 ])
-def ambient_battery(cell_temp_degc, ambient_degc, dt_s, time_constant_h, initial_offset_k):
+def ambient_battery(cell_temp_degc, ambient_degc, dt_s, time_constant_h):
     """A pack without thermal management: its temperature follows the ambient,
-    dT/dt = (T_amb - T) / tau, so a cold day raises its resistance (Arrhenius)."""
+    dT/dt = (T_amb - T) / tau, so a cold day raises its resistance (Arrhenius). It starts
+    ``initial_offset_k`` above the first ambient (the state's initial value)."""
     next_temp = cell_temp_degc + (ambient_degc - cell_temp_degc) * (dt_s / (3600.0 * time_constant_h))
     return cell_temp_degc, next_temp

@@ -11,6 +11,7 @@ _AIR_DENSITY_KG_PER_M3 = 1.2
 @effect("cabin_hvac", sink="dc_load_w", label="cabin heating and cooling", key_params=("ua_w_per_k",),
         returns=("hvac_heat_w", "cabin_temp_degc_next"),
         drivers=("ambient_degc", "door_open", "passengers", "solar_w_per_m2"),
+        handles={"cabin_setpoint_degc": "setpoint_degc"},
         params=[
     Param("setpoint_degc", 20.0, "degC", (14.0, 28.0), "Cabin setpoint T_set",
           "Hasan et al. 2023, tuned parameter; VDV 236-style comfort curves"),

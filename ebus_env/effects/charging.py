@@ -32,7 +32,9 @@ def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
     return cc_c_rate * capacity_ah, taper
 
 
-@effect("grid_charger", slot="charger", drivers=("charger_connected",), params=[
+@effect("grid_charger", slot="charger", drivers=("charger_connected",),
+        handles={"charger_power_kw": "power_kw", "charger_efficiency": "efficiency",
+                 "charge_pulse_duty": "pulse_duty"}, params=[
     Param("power_kw", 450.0, "kW", (1.0, 1000.0),
           "Rated DC power P_rated, used when the profile gives no charger rating",
           "Hasan et al. 2023: 450 / 290 kW opportunity, 18 kW depot; tuned parameter"),

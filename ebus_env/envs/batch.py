@@ -30,8 +30,8 @@ from ebus_env.effects.vehicle import COMMUTER_SHAPE
 from ebus_env.envs import reference
 from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
-from ebus_env.errors import ConfigError
-from ebus_env.model.model import default_threads, run_chunks
+from ebus_env.errors import CompositionError, ConfigError
+from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.units import J_PER_KWH
 
 OBSERVATIONS = (  # name, unit, low, high
@@ -254,7 +254,7 @@ def course_of(cfg) -> Course:
 
 
 class BusBatch:
-    """``n`` buses of one env config (:class:`ebus_env.envs.ebus.EnvConfig`), in arrays.
+    """``n`` buses of one env config (:class:`ebus_env.envs.spec.EnvConfig`), in arrays.
 
     ``params`` (n, n_params), ``states`` (n, n_states): the model's; ``ref`` (n, 9): the
     reference vehicles; ``inputs`` (n, n_inputs, n_rows): the last decision's input rows;
@@ -286,14 +286,19 @@ class BusBatch:
                                               if p.endswith("." + param)), ""))
 
         self._capacity_at = of_any_effect("max_passengers")
-        self.power_at = index(m.param_names, "grid_charger.power_kw")
-        self.efficiency_at = index(m.param_names, "grid_charger.efficiency")
+        try:  # the parameters the actions set, from whichever effects offer them
+            setpoint_at, pulse_at, self.power_at, self.efficiency_at = (m.handle(h) for h in (
+                "cabin_setpoint_degc", "charge_pulse_duty", "charger_power_kw",
+                "charger_efficiency"))
+        except CompositionError as exc:
+            raise ConfigError(f"Env bus '{cfg.bus}': {exc} The env's ECO actions set it.") \
+                from None
         soc_min_at = of_any_effect("soc_min_frac")
         acc = m.accumulator_names
         self.at = np.array([
             index(m.input_names, "ambient_degc"), index(m.input_names, "passenger_count"),
-            index(m.input_names, "time_of_day_h"), index(m.param_names, "cabin_hvac.setpoint_degc"),
-            index(m.param_names, "grid_charger.pulse_duty"), index(m.state_names, "soc_frac"),
+            index(m.input_names, "time_of_day_h"), setpoint_at, pulse_at,
+            index(m.state_names, "soc_frac"),
             index(m.state_names, "speed_mps"), index(m.state_names, "cabin_temp_degc"),
             index(m.state_names, "distance_m"), index(acc, "motor"), index(acc, "charger"),
             index(acc, "battery_shortfall"), index(acc, "battery_ohmic_loss"),
@@ -301,8 +306,7 @@ class BusBatch:
         self._load_cols = np.array([acc.index(t) for t in m.layout.load_terms], np.int64)
         self.rows_at = np.array([index(m.input_names, name) for name in reference.ROW_NAMES],
                                 np.int64)
-        charger_kw = cfg.charger_kw if cfg.charger_kw is not None else \
-            m.params[self.power_at] if self.power_at >= 0 else 0.0
+        charger_kw = cfg.charger_kw if cfg.charger_kw is not None else m.params[self.power_at]
         self.const = np.zeros(len(CONST))
         self.const[:] = (cfg.start_time_h, cfg.service_h,
                          cfg.ambient_amplitude_k, cfg.reserve_soc_pct,

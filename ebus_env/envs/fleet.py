@@ -12,9 +12,9 @@ import numba
 import numpy as np
 
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
-from ebus_env.envs.ebus import ACTIONS, EnvConfig, bus_info, checked_actions, config_keys, physical, reward_of
 from ebus_env.envs.reference import ROW_NAMES
 from ebus_env.envs.reward import TERMS
+from ebus_env.envs.spec import ACTIONS, EnvConfig, bus_info, checked_actions, config_keys, physical, reward_of
 from ebus_env.errors import ConfigError
 
 SITE_OBSERVATIONS = (  # name, unit, low, high
@@ -190,8 +190,7 @@ class EBusFleetEnv(gym.Env):
             raise ConfigError("A fleet's bus model needs a charger (inputs charger_connected "
                               "and charger_rating_w).")
         self.efficiency = np.concatenate([  # each bus's charger efficiency
-            np.full(line.n, line.params[0, line.efficiency_at] if line.efficiency_at >= 0
-                    else 1.0) for line in self.lines])
+            np.full(line.n, line.params[0, line.efficiency_at]) for line in self.lines])
         self._edges = np.cumsum([0] + [line.n for line in self.lines])
         self._started = False
 

@@ -16,9 +16,16 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ebus_env.envs import MAX_DECISIONS
-from ebus_env.envs.batch import OBSERVATIONS, OUT, BusBatch
-from ebus_env.envs.ebus import ACTION_NAMES, SCORED, EnvConfig, checked_actions, physical, reward_of, spaces
-from ebus_env.envs.reward import QUANTITIES, TERMS
+from ebus_env.envs.batch import OBSERVATIONS, BusBatch
+from ebus_env.envs.spec import (
+    ACTION_NAMES,
+    EnvConfig,
+    batch_info,
+    checked_actions,
+    physical,
+    reward_of,
+    spaces,
+)
 
 
 class EBusVectorEnv(VectorEnv):
@@ -83,7 +90,8 @@ class EBusVectorEnv(VectorEnv):
         self._elapsed += 1
         terminated = depleted | end
         truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
-        info = self._info(values, costs, depleted)
+        info = batch_info(buses, values, costs)
+        info["depleted"] = depleted
         obs = buses.obs.copy()
         if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
             was_ended = self._ended
@@ -112,21 +120,6 @@ class EBusVectorEnv(VectorEnv):
     def _restart(self, b: int) -> None:
         self.buses.reset(b, self._rngs[b])
         self._elapsed[b] = 0
-
-    def _info(self, values: np.ndarray, costs: np.ndarray, depleted: np.ndarray) -> dict:
-        buses = self.buses
-        info = {name: buses.out[:, i].copy() for i, name in enumerate(OUT)}
-        hours = info["duration_s"] / 3600.0
-        info["battery_kw"] = info["battery_kwh"] / hours
-        info["speed_kmh_mean"] = info["distance_km"] / hours
-        info["depleted"] = depleted
-        k = len(QUANTITIES) - len(SCORED)
-        info.update({name: buses.quantities[:, k + i].copy() for i, name in enumerate(SCORED)})
-        info["reward_terms"] = {t: costs[:, i] for i, t in enumerate(TERMS)}
-        kwh = buses.breakdown_matrix_kwh()
-        info["breakdown_kwh"] = {t: kwh[:, i] for i, t in enumerate(buses.energy_terms)}
-        info["actions"] = {name: values[:, i] for i, name in enumerate(ACTION_NAMES)}
-        return info
 
     def close_extras(self, **kwargs):
         self._rngs = []

@@ -525,7 +525,3 @@ def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:
                 report.warnings.append(
                     f"{over.size} steps with |acceleration| above {max_accel_mps2:g} m/s^2 "
                     f"(max {a.max():.2f} m/s^2): the model cannot follow them exactly")
-
-
-def preset_names() -> list[str]:
-    return paths.config_names("logs")

@@ -6,55 +6,26 @@ Build one with :func:`build_model` (or from a bus config, :func:`ebus_env.config
     batch = model.simulate_batch(profile, params_matrix)    # N parameter sets at once
     model.run(params, states, inputs, ...)                  # N buses, k steps, from a saved state
 
-All three go through the same compiled kernel (:mod:`ebus_env.model.codegen`).
+All three go through the same compiled kernel (:mod:`ebus_env.model.generate`,
+:mod:`~ebus_env.model.lanes`, :mod:`~ebus_env.model.kernels`).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 
 from ebus_env.effects.base import Effect, Param, get_effect
 from ebus_env.errors import CompositionError, ConfigError, EbusError, unknown_name
-from ebus_env.model import codegen
-from ebus_env.model.signals import SINKS, SLOTS
+from ebus_env.model.generate import Composition, generate
+from ebus_env.model.kernels import compile_kernel, compile_lanes, python_kernel
+from ebus_env.model.lanes import LANES_MIN
+from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.profile import Profile
-
-_POOL: ThreadPoolExecutor | None = None
-
-
-def default_threads() -> int:
-    """Threads for batched runs: ``$EBUS_THREADS`` or the number of CPUs."""
-    return max(1, int(os.environ.get("EBUS_THREADS", os.cpu_count() or 1)))
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=default_threads(), thread_name_prefix="ebus")
-    return _POOL
-
-
-def run_chunks(fn, edges) -> None:
-    """Call ``fn(lo, hi)`` for each chunk ``edges[i]..edges[i+1]``, all at once: the first on
-    this thread (one hand-off fewer), the others on a shared pool (the compiled passes release
-    the GIL). Returns when every chunk is done; re-raises the first error."""
-    if len(edges) == 2:  # one chunk: no pool at all
-        fn(edges[0], edges[1])
-        return
-    chunks = list(zip(edges[:-1], edges[1:], strict=True))
-    futures = [_pool().submit(fn, lo, hi) for lo, hi in chunks[1:]]
-    try:
-        fn(*chunks[0])
-    finally:
-        wait(futures)  # no chunk may still write into the arrays when this returns
-    for f in futures:
-        f.result()
+from ebus_env.signals import HANDLES, SINKS, SLOTS
 
 
 def _resolve(item: str | Effect) -> Effect:
@@ -64,10 +35,10 @@ def _resolve(item: str | Effect) -> Effect:
 class Model:
     """A compiled Lo-Fi bus model (use :func:`build_model` to make one)."""
 
-    def __init__(self, composition: codegen.Composition, values: Mapping[str, float],
+    def __init__(self, composition: Composition, values: Mapping[str, float],
                  bounds: Mapping[str, tuple[float, float]], dt_s: float, name: str = ""):
         self.composition = composition
-        self.layout = codegen.generate(composition)
+        self.layout = generate(composition)
         self.dt_s = float(dt_s)
         self.name = name
         self._effects = {e.name: e for e in composition.effects}
@@ -144,14 +115,21 @@ class Model:
             raise unknown_name("parameter", name, self.param_names)
         return self._param_index[name]
 
-    def describe(self) -> str:
-        lines = [f"model {self.name or '(unnamed)'}: dt = {self.dt_s} s"]
-        for slot, eff in self.composition.slots.items():
-            lines.append(f"  slot {slot:13s} {eff.name if eff else 'none'}")
-        for sink, effs in self.composition.contributions.items():
-            if effs:
-                lines.append(f"  sink {sink:13s} {', '.join(e.name for e in effs)}")
-        return "\n".join(lines)
+    def handle(self, name: str) -> int:
+        """Column of ``params`` of the parameter this model's effects offer as handle ``name``
+        (:data:`ebus_env.signals.HANDLES`, e.g. ``charge_pulse_duty``); a clear error when no
+        effect, or more than one, offers it."""
+        if name not in HANDLES:
+            raise unknown_name("handle", name, HANDLES)
+        offers = [f"{e.name}.{e.handles[name]}" for e in self.effects if name in e.handles]
+        if len(offers) != 1:
+            h = HANDLES[name]
+            raise CompositionError(
+                f"Model '{self.name}': {len(offers) or 'no'} effects offer the {h.description} "
+                f"(handle '{name}'{': ' + ', '.join(offers) if offers else ''}); exactly one "
+                f"must, e.g. {h.provider}, or an effect of yours declaring handles={{'{name}': "
+                "'<its parameter>'}.")
+        return self._param_index[offers[0]]
 
     # -- parameters -------------------------------------------------------------------------
     def _check_in_bounds(self, values: np.ndarray, what: str) -> None:
@@ -245,11 +223,11 @@ class Model:
         if variant.endswith("_lanes"):
             columns = frozenset(range(len(self.params)) if varying is None else varying)
             if columns not in self._lane_kernels:
-                self._lane_kernels[columns] = codegen.compile_lanes(self.composition, self.layout,
+                self._lane_kernels[columns] = compile_lanes(self.composition, self.layout,
                                                                     columns)
             return getattr(self._lane_kernels[columns], variant + "_compiled")
         if self._kernel is None:
-            self._kernel = codegen.compile_kernel(self.composition, self.layout)
+            self._kernel = compile_kernel(self.composition, self.layout)
         return getattr(self._kernel, variant + "_compiled")
 
     def varying_columns(self, params: np.ndarray) -> frozenset[int]:
@@ -267,7 +245,7 @@ class Model:
         set of differing parameters on an empty cache) for the parameter sets ``params``
         (default: all the model's own)."""
         t0 = time.perf_counter()
-        n_bus = codegen.LANES_MIN if lanes else 1  # enough buses for run() to choose lanes
+        n_bus = LANES_MIN if lanes else 1  # enough buses for run() to choose lanes
         matrix = self.params[None, :] if params is None else params
         varying = self.varying_columns(matrix) if lanes else None
         args = (np.repeat(self.params[None, :], n_bus, axis=0),
@@ -300,7 +278,7 @@ class Model:
         step0 : (N,) first input row of each bus (default: 0)
         n_steps : steps to advance, one count for all buses or (N,) per bus (default: all
             rows after ``step0``)
-        record_every, record_sel, record_out : trace recording (see codegen)
+        record_every, record_sel, record_out : trace recording (see :mod:`ebus_env.model.generate`)
         acc : (N, n_acc) accumulators to add to (default: new ones)
         sample_mask : (n_rows,) bool: record only ``soc_frac`` at these rows, into
             ``record_out[:, :, 0]``, and skip the energy sums (calibration)
@@ -308,7 +286,7 @@ class Model:
             at least 50,000 bus-steps)
         python : run the uncompiled Python version of the same code
         lanes : when all buses read the same input rows (a batch of parameter sets) and each
-            thread has at least ``codegen.LANES_MIN`` of them, advance them in groups with the
+            thread has at least ``LANES_MIN`` of them, advance them in groups with the
             SIMD lane kernel (``run_lanes``, ``run_sample_lanes``: the same results to the last
             bit, about half the time with 64 to 550 buses when a few parameters differ). Off by
             default: it compiles on first use (about 12 s per model and set of differing
@@ -360,7 +338,7 @@ class Model:
                 int(record_every), np.asarray(record_sel, np.int64), record_out, sample_mask, acc)
         if python:
             if self._python_kernel is None:
-                self._python_kernel = codegen.python_kernel(self.composition, self.layout)
+                self._python_kernel = python_kernel(self.composition, self.layout)
             self._python_kernel[variant](*args, 0, n_bus)
             return acc
         kernel = self.kernel(variant)
@@ -383,8 +361,8 @@ class Model:
     @staticmethod
     def _shared_rows(input_set, step0, steps, edges) -> bool:
         """Whether the lane kernel applies: every bus reads the same input rows and each
-        thread has at least ``codegen.LANES_MIN`` buses."""
-        return (min(np.diff(edges)) >= codegen.LANES_MIN and (input_set == input_set[0]).all()
+        thread has at least ``LANES_MIN`` buses."""
+        return (min(np.diff(edges)) >= LANES_MIN and (input_set == input_set[0]).all()
                 and (step0 == step0[0]).all() and (steps == steps[0]).all())
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
@@ -456,7 +434,7 @@ class Model:
         n = inputs.shape[1]
         out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
         # the wall time is the run's, not the JIT's
-        self.compile(record=len(sel) > 0, lanes=lanes and len(matrix) >= codegen.LANES_MIN,
+        self.compile(record=len(sel) > 0, lanes=lanes and len(matrix) >= LANES_MIN,
                      params=matrix)
         t0 = time.perf_counter()
         acc = self.run(matrix, states, inputs, record_every=record_every if len(sel) else 0,
@@ -565,5 +543,5 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
                 encoded[(eff.name, table.name)] = table.resolve(value).encode(table.name)
             except ValueError as exc:
                 raise ConfigError(f"Effect '{eff.name}': {exc}") from exc
-    comp = codegen.Composition(chosen, sinks, encoded)
+    comp = Composition(chosen, sinks, encoded)
     return Model(comp, values, box, dt_s, name)

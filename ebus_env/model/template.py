@@ -4,7 +4,7 @@ The step is a sequence of stages. ``Site`` stages call the effect that fills a s
 stages sum the contributions of the chosen effects; ``Code`` stages are the model's own
 physics, which every bus shares: force allocation between motor and friction brakes, the
 longitudinal dynamics, and the battery's power limits. The code generator
-(:mod:`ebus_env.model.codegen`) walks this list once per model and emits one flat function.
+(:mod:`ebus_env.model.generate`) walks this list once per model and emits one flat function.
 
 Per step (state at t_k, inputs of row k, everything in SI)::
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import yaml
 
 from ebus_env.envs.climate import climate_of
-from ebus_env.envs.ebus import ACTIONS, EnvConfig
+from ebus_env.envs.spec import ACTIONS, EnvConfig
 from ebus_env.errors import ConfigError
 from ebus_env.study.checks import check_keys, positive
 from ebus_env.study.costs import CostModel

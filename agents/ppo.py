@@ -12,13 +12,15 @@ seeded ``seed + i``; the evaluator's held-out days use seeds from 10,000.
 from __future__ import annotations
 
 import json
+import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ebus_env import paths
-from ebus_env.envs.ebus import config_keys
+from ebus_env.envs.spec import config_keys
 from ebus_env.errors import ConfigError
 
 DEFAULT_AGENT = paths.trained("ppo_sort2_day")
@@ -44,6 +46,21 @@ class PPOConfig:
     normalize: bool = True
     checkpoint_every: int = 100_000
     time_limit_min: float | None = None  # stop (and save) after this much wall-clock time
+    torch_threads: int = 1  # a small MLP on a shared CPU: more threads mostly wait on each other
+
+    def __post_init__(self):
+        for name in ("num_envs", "total_steps", "n_steps", "batch_size", "n_epochs",
+                     "checkpoint_every", "torch_threads"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs a whole "
+                                  "number >= 1.")
+        for name in ("learning_rate", "gamma", "gae_lambda"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs a value "
+                                  "in (0, 1].")
+        if self.time_limit_min is not None and not self.time_limit_min > 0:
+            raise ConfigError(f"PPO config time_limit_min={self.time_limit_min!r}: needs "
+                              "minutes > 0, or leave it out for no limit.")
 
     @classmethod
     def load(cls, source: str | Path | None = "ppo", **overrides) -> PPOConfig:
@@ -61,35 +78,52 @@ def _venv(cfg: PPOConfig, num_envs: int):
     return VecMonitor(SB3VecEnv(num_envs=num_envs, config=cfg.env, **cfg.env_overrides))
 
 
-def _time_limit(minutes: float):
-    """A callback that ends training after ``minutes`` of wall-clock time."""
-    import time
+def require_rl():
+    """Import torch and stable-baselines3, or say which extra installs them."""
+    try:
+        import stable_baselines3
+        import torch
+    except ImportError as exc:
+        raise ConfigError(f"PPO needs the rl extra ({exc.name} is missing): "
+                          "pip install 'ebus-env[rl]'.") from None
+    return torch, stable_baselines3
 
+
+def _time_limit(minutes: float, clock: Callable[[], float]):
+    """A callback that ends training once ``clock`` [s] has advanced ``minutes``."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class TimeLimit(BaseCallback):
+        reached = False
+
         def _on_training_start(self):
-            self.deadline = time.perf_counter() + 60.0 * minutes
+            self.deadline = clock() + 60.0 * minutes
 
         def _on_step(self) -> bool:
-            return time.perf_counter() < self.deadline
+            TimeLimit.reached = clock() >= self.deadline
+            return not TimeLimit.reached
 
     return TimeLimit()
 
 
-def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
+def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
+          clock: Callable[[], float] = time.perf_counter) -> Path:
     """Train PPO as configured; returns ``out_dir`` holding the agent and ``training.json``
-    (steps done, wall time, machine)."""
+    (steps done, wall time, whether the time limit ended it, machine).
+
+    ``clock`` [s] measures the time limit and the wall time (tests pass a counter); torch runs
+    on ``cfg.torch_threads`` threads (set for the whole process)."""
     import importlib.util
     import os
     import platform
-    import time
 
+    torch, _ = require_rl()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CheckpointCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
+    torch.set_num_threads(cfg.torch_threads)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
@@ -109,29 +143,34 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False) -> Path:
     callbacks = [CheckpointCallback(max(cfg.checkpoint_every // cfg.num_envs, 1),
                                     str(out / "checkpoints"), name_prefix="ppo",
                                     save_vecnormalize=cfg.normalize)]
-    if cfg.time_limit_min:
-        callbacks.append(_time_limit(cfg.time_limit_min))
-    t0 = time.perf_counter()
-    model.learn(cfg.total_steps, callback=callbacks, progress_bar=progress)
-    wall_s = time.perf_counter() - t0
+    limit = _time_limit(cfg.time_limit_min, clock) if cfg.time_limit_min else None
+    t0 = clock()
+    model.learn(cfg.total_steps, callback=callbacks + ([limit] if limit else []),
+                progress_bar=progress)
+    wall_s = clock() - t0
     model.save(out / "model.zip")
     if cfg.normalize:
         venv.save(str(out / "vecnormalize.pkl"))
     venv.close()
     (out / "training.json").write_text(json.dumps({
         "steps": int(model.num_timesteps), "wall_s": round(wall_s, 1),
-        "steps_per_s": round(model.num_timesteps / wall_s), "cpus": os.cpu_count(),
+        "steps_per_s": round(model.num_timesteps / max(wall_s, 1e-9)),
+        "stopped_by_time_limit": bool(limit and limit.reached),
+        "torch_threads": cfg.torch_threads, "cpus": os.cpu_count(),
         "machine": platform.processor() or platform.machine()}, indent=2))
     return out
 
 
 class PPOPolicy:
     """A trained agent (``model.zip`` and, if trained with it, ``vecnormalize.pkl``) with
-    ``predict(obs, deterministic=True)`` on raw observations."""
+    ``predict(obs, deterministic=True)`` on raw observations; torch runs on ``torch_threads``
+    threads (set for the whole process)."""
 
-    def __init__(self, path: str | Path, name: str | None = None):
+    def __init__(self, path: str | Path, name: str | None = None, torch_threads: int = 1):
+        torch, _ = require_rl()
         from stable_baselines3 import PPO
 
+        torch.set_num_threads(torch_threads)
         path = Path(path)
         folder = path if path.is_dir() else path.parent
         model_file = folder / "model.zip" if path.is_dir() else path
@@ -158,15 +197,17 @@ class PPOPolicy:
         return self.model.predict(obs, deterministic=deterministic)
 
 
-def load_policy(spec: str):
-    """``rule:NAME`` (``ebus_env.agents.rules.RULES``), ``ppo:PATH`` (a training folder or a
+def load_policy(spec: str, torch_threads: int = 1):
+    """``rule:NAME`` (``agents.rules.RULES``), ``ppo:PATH`` (a training folder or a
     checkpoint's zip) or ``ppo:default`` (the shipped agent)."""
-    from ebus_env.agents.rules import rule
+    from agents.rules import rule
 
     kind, _, arg = spec.partition(":")
     if kind == "rule":
         return rule(arg)
     if kind == "ppo":
-        return PPOPolicy(DEFAULT_AGENT, "ppo:default") if arg == "default" else PPOPolicy(arg)
+        if arg == "default":
+            return PPOPolicy(DEFAULT_AGENT, "ppo:default", torch_threads)
+        return PPOPolicy(arg, torch_threads=torch_threads)
     raise ConfigError(f"Policy '{spec}': use rule:NAME (baseline, eco_driving, eco_comfort, "
                       "eco_charging, eco_all), ppo:PATH or ppo:default.")

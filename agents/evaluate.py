@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from scipy import stats
 
-from ebus_env.agents.rules import RULES
+from agents.rules import RULES
 from ebus_env.envs.vector import EBusVectorEnv
 
 HELD_OUT_SEED = 10_000
@@ -281,6 +281,6 @@ def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SE
     names = [s.name for s in scores]
     if len(set(names)) != len(names):
         raise ValueError(f"Two policies have the same name: {names}.")
-    from ebus_env.envs.ebus import EnvConfig
+    from ebus_env.envs.spec import EnvConfig
 
     return ScoreSheet(str(config), seeds, scores, EnvConfig.load(config, **overrides).service_h)

@@ -1,4 +1,4 @@
-"""The model's vocabulary: input channels, sinks and slots.
+"""The model's vocabulary: input channels, sinks, slots and handles.
 
 An effect's function names what it reads by argument name; these tables say what those names
 mean. Sinks sum the contributions of any number of effects; slots take exactly one
@@ -143,5 +143,29 @@ CORE_STATES: dict[str, CoreState] = {
         CoreState("speed_mps", "m/s", "Vehicle speed"),
         CoreState("distance_m", "m", "Distance travelled"),
         CoreState("distance_ref_m", "m", "Distance of the reference profile"),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Handle:
+    """A parameter that a controller outside the model sets or reads (an env's action): an
+    effect offers it by declaring ``handles={"<handle>": "<its parameter>"}``, so the env needs
+    no effect's name. ``provider`` is the built-in effect that offers it."""
+
+    name: str
+    unit: str
+    description: str
+    provider: str
+
+
+HANDLES: dict[str, Handle] = {
+    h.name: h
+    for h in (
+        Handle("cabin_setpoint_degc", "degC", "cabin setpoint", "cabin_hvac"),
+        Handle("charger_power_kw", "kW", "rated DC power of the charger", "grid_charger"),
+        Handle("charger_efficiency", "1", "charger efficiency, grid to DC", "grid_charger"),
+        Handle("charge_pulse_duty", "1", "pulse duty cycle of the charger (1: continuous)",
+               "grid_charger"),
     )
 }
