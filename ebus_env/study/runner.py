@@ -17,8 +17,8 @@ import threading
 import numpy as np
 
 from ebus_env.envs.batch import BusBatch
-from ebus_env.envs.spec import ACTIONS, physical
 from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
+from ebus_env.envs.spec import ACTIONS, physical
 from ebus_env.errors import ConfigError
 from ebus_env.study.scenarios import Scenario
 from ebus_env.study.spec import StudySpec
