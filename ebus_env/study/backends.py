@@ -55,8 +55,9 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         write_rows(out, args[1].key(spec), rows)
         say(f"  {args[1].name}: done")
 
-    from ebus_env.study.runner import run_scenario
+    from ebus_env.study.runner import forget_batches, run_scenario
 
+    forget_batches()
     map_tasks(run_scenario, [(spec, s) for s in todo], finished_one, use_ray=use_ray,
               address=address, workers=workers)
     if todo:

@@ -27,6 +27,24 @@ SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
 
 
 _BUILD = threading.Lock()  # models are built (compiled or loaded) one at a time
+# Idle batches of finished scenarios, by (env config, buses): a later scenario with the same
+# line config (most of a study's grid: only the charger rating and decision_s reach the bus
+# config) takes one instead of building its model again. Every day resets all its buses.
+_IDLE: dict[tuple[str, int], list[BusBatch]] = {}
+MAX_IDLE = 64
+
+
+def take_batch(cfg, n: int) -> BusBatch:
+    """A batch of ``n`` buses of the env config ``cfg``: an idle one, else a new one."""
+    with _BUILD:
+        idle = _IDLE.get((repr(cfg), n))
+        return idle.pop() if idle else BusBatch(cfg, n)
+
+
+def forget_batches() -> None:
+    """Drop the idle batches (a new study reads its bus and cycle files afresh)."""
+    with _BUILD:
+        _IDLE.clear()
 
 
 class Site:
@@ -37,8 +55,7 @@ class Site:
         infra, strategy = scenario.infrastructure, scenario.strategy
         self.lines = []
         for line in spec.lines:
-            with _BUILD:
-                batch = BusBatch(spec.env_config(line, infra, strategy), line.buses)
+            batch = take_batch(spec.env_config(line, infra, strategy), line.buses)
             period_s = batch.lap_period_s / line.buses if line.headway_min is None \
                 else 60.0 * line.headway_min
             batch.offsets_s = np.arange(line.buses) * period_s
@@ -55,6 +72,14 @@ class Site:
             for b in self.lines])
         self.settings = np.array([v for _, v in strategy.settings])
         self.policy = policy(strategy.policy, strategy.policy_args) if strategy.policy else None
+
+    def close(self) -> None:
+        """Leave the batches idle for a later scenario (:func:`take_batch`)."""
+        with _BUILD:
+            for batch in self.lines:
+                if sum(map(len, _IDLE.values())) < MAX_IDLE:
+                    _IDLE.setdefault((repr(batch.config), batch.n), []).append(batch)
+        self.lines = []
 
     def day(self, day: int) -> dict:
         """Simulate one seeded day; the row of results (before costs)."""
@@ -187,17 +212,20 @@ def run_scenario(spec: StudySpec, scenario: Scenario) -> list[dict]:
     site = Site(spec, scenario)
     infra, costs = scenario.infrastructure, spec.costs
     rows = []
-    for day in range(spec.days.count):
-        row = site.day(day)
-        cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
-                         site.cfg.start_time_h, row["site_peak_15min_kw"], infra.installed_kw,
-                         row["battery_discharged_kwh"])
-        km = max(row["distance_km"], 1e-9)
-        row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
-        row["cost_per_km"] = sum(cost.values()) / km
-        row["cost_day"] = sum(cost.values())
-        row["kwh_per_km"] = row["grid_kwh"] / km
-        rows.append({**scenario.columns(), "day": day, **row})
+    try:
+        for day in range(spec.days.count):
+            row = site.day(day)
+            cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
+                             site.cfg.start_time_h, row["site_peak_15min_kw"],
+                             infra.installed_kw, row["battery_discharged_kwh"])
+            km = max(row["distance_km"], 1e-9)
+            row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
+            row["cost_per_km"] = sum(cost.values()) / km
+            row["cost_day"] = sum(cost.values())
+            row["kwh_per_km"] = row["grid_kwh"] / km
+            rows.append({**scenario.columns(), "day": day, **row})
+    finally:
+        site.close()
     return rows
 
 
