@@ -14,9 +14,10 @@ import importlib
 import math
 import threading
 
+import numba
 import numpy as np
 
-from ebus_env.envs.batch import BusBatch
+from ebus_env.envs.batch import ELAPSED_ROWS, OUT, BusBatch
 from ebus_env.envs.ebus import ACTIONS, physical
 from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
 from ebus_env.errors import ConfigError
@@ -24,6 +25,7 @@ from ebus_env.study.scenarios import Scenario
 from ebus_env.study.spec import StudySpec
 
 SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
+DISTANCE_KM, EMPTY = OUT.index("distance_km"), OUT.index("empty")
 
 
 _BUILD = threading.Lock()  # models are built (compiled or loaded) one at a time
@@ -103,18 +105,21 @@ class Site:
         empty_left_h = np.full(self.n, np.nan)
         busy_rows = wait_rows = 0.0
         limit_w = 1e3 * infra.site_limit_kw
+        lines, edges = self.lines, list(zip(self.edges[:-1], self.edges[1:], strict=True))
         for k in range(n_steps):
-            if self.policy is not None:
-                obs = np.concatenate([b.obs for b in self.lines])
-                obs[:, PLUGGED] = plugged
-                values = physical(np.clip(np.asarray(self.policy.predict(
-                    obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)), -1, 1))
-            v = values.copy()
-            v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
-            for batch, lo, hi in zip(self.lines, self.edges[:-1], self.edges[1:], strict=True):
-                batch.values[:] = v[lo:hi]
+            if self.policy is not None or k == 0:  # fixed settings: the same every decision
+                if self.policy is not None:
+                    obs = np.concatenate([b.obs for b in lines])
+                    obs[:, PLUGGED] = plugged
+                    values = physical(np.clip(np.asarray(self.policy.predict(
+                        obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)),
+                        -1, 1))
+                v = values.copy()
+                v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
+                for batch, (lo, hi) in zip(lines, edges, strict=True):
+                    batch.values[:] = v[lo:hi]
+            for batch in lines:
                 batch.drive(0, batch.n)
-            lines = self.lines
             connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
             rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
             rows = _gather([b.rows for b in lines])
@@ -130,22 +135,18 @@ class Site:
             held = float(connected.sum() if live is None else (connected * live).sum())
             busy_rows += held
             wait_rows += wanted - held
-            for batch, lo, hi in zip(lines, self.edges[:-1], self.edges[1:], strict=True):
+            for batch, (lo, hi) in zip(lines, edges, strict=True):
                 if len(lines) > 1:  # one line shares its own arrays (views), the others copy
                     batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
                     batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
                 batch.run(0, batch.n)
             site_kw[k] = _gather([b.column("grid_kwh") for b in lines]).sum() / (step_s / 3600.0)
-            chem = _gather([b.quantities[:, 0] for b in lines])
-            net_kwh += chem
-            discharged_kwh += np.maximum(chem, 0.0)
-            distance_km += _gather([b.column("distance_km") for b in lines])
-            np.minimum(lowest_soc, _gather([b.obs[:, 0] for b in lines]), out=lowest_soc)
-            first = (_gather([b.column("empty") for b in lines]) > 0) & np.isnan(empty_left_h)
-            if first.any():
-                left = cfg.service_h - _gather([b.elapsed_h() for b in lines])
-                empty_left_h[first] = np.maximum(left[first], 0.0)
-            if all(b.ended()[1].all() for b in lines):
+            ended = True
+            for batch, (lo, _) in zip(lines, edges, strict=True):
+                ended &= _tally(batch.out, batch.quantities, batch.obs, batch.book, lo,
+                                batch.service_rows, cfg.service_h, cfg.dt_s, net_kwh,
+                                discharged_kwh, distance_km, lowest_soc, empty_left_h)
+            if ended:
                 site_kw = site_kw[:k + 1]
                 break
         dt_s = cfg.dt_s
@@ -178,6 +179,26 @@ class Site:
             "load_step_s": step_s,
             "site_load_kw": load_kw,
         }
+
+
+@numba.njit(cache=True, nogil=True)
+def _tally(out, quantities, obs, book, lo, service_rows, service_h, dt_s, net_kwh,
+           discharged_kwh, distance_km, lowest_soc, empty_left_h) -> bool:
+    """Add a line's decision to the day's sums per bus (the line's buses from ``lo`` of the
+    site): chemical energy net and discharged [kWh], distance [km], lowest SoC, and the
+    service hours left when a bus first ran empty. True when every bus has ended service."""
+    ended = True
+    for b in range(out.shape[0]):
+        i = lo + b
+        chem_kwh = quantities[b, 0]
+        net_kwh[i] += chem_kwh
+        discharged_kwh[i] += max(chem_kwh, 0.0)
+        distance_km[i] += out[b, DISTANCE_KM]
+        lowest_soc[i] = min(lowest_soc[i], obs[b, 0])
+        if out[b, EMPTY] > 0.0 and math.isnan(empty_left_h[i]):
+            empty_left_h[i] = max(service_h - book[b, ELAPSED_ROWS] * dt_s / 3600.0, 0.0)
+        ended &= book[b, ELAPSED_ROWS] >= service_rows - 0.5
+    return ended
 
 
 def _gather(arrays: list[np.ndarray]) -> np.ndarray:
