@@ -9,16 +9,15 @@ January) with its terminal and depot chargers, one seeded day. Ray's overhead is
 over the in-process wall time for the same scenarios with the same number of workers (threads
 in-process, Ray worker processes), with and without starting the Ray runtime.
 
-On a machine that other jobs keep busy, wall-clock rates only say what the load left over;
-the CPU time per fleet-day (``time.process_time`` of this process, the in-process runs) gives
-the rate that two cores of one's own would reach, since the compiled passes that take most of
-the time release the GIL and the threads scale.
+On a machine that other jobs keep busy, wall-clock rates only say what the load left over.
+The fleet-day rows therefore also give the rate on cores of one's own: each thread's wall time
+less the time it was runnable but waiting for a CPU (Linux schedstat), which keeps its time
+computing and its time blocked on the GIL.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
 import time
@@ -57,56 +56,48 @@ def study(n_options: int, service_h: float) -> dict:
     return data
 
 
+def thread_times() -> tuple[float, float, float]:
+    """This thread's (wall clock, time on a CPU, time runnable but waiting for one) [s]; the
+    last two from Linux's schedstat (zeros elsewhere)."""
+    try:
+        on_cpu_ns, queued_ns, _ = Path("/proc/thread-self/schedstat").read_text().split()
+    except OSError:
+        return time.perf_counter(), 0.0, 0.0
+    return time.perf_counter(), int(on_cpu_ns) / 1e9, int(queued_ns) / 1e9
+
+
+def run_threads(sites: list, days: int) -> tuple[float, float, float]:
+    """Each site's ``days`` on a thread of its own, all at once. Returns the wall time, the
+    CPU time per fleet-day, and the wall time without the waits for a CPU that other jobs
+    caused (the longest thread's time on a CPU plus its time blocked, on the GIL or else)."""
+    def one(site):
+        start = thread_times()
+        for d in range(days):
+            site.day(d)
+        return [b - a for a, b in zip(start, thread_times(), strict=True)]
+
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(len(sites)) as pool:
+        spans = list(pool.map(one, sites))
+    wall = time.perf_counter() - t0
+    cpu = sum(on_cpu for _, on_cpu, _ in spans) / (len(sites) * days)
+    return wall, cpu, max(w - queued for w, _, queued in spans)
+
+
 def fleet_days(service_h: float, days: int) -> None:
     spec = load_study(study(1, service_h))
     scenario = scenarios(spec)[0]
     sites = [Site(spec, scenario) for _ in range(2)]
     sites[0].day(0)  # compile or load the kernels
-    walls, cpus = [], []
-    for d in range(days):
-        t0, c0 = time.perf_counter(), time.process_time()
-        sites[0].day(d)
-        walls.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-    one, cpu = statistics.median(walls), statistics.median(cpus)
-    row(f"one fleet-day ({spec.lines[0].buses} buses, {service_h:g} h), 1 thread",
-        f"{1e3 * one:.0f} ms", f"median of {days}; {60 / one:.0f} fleet-days/min")
-    held = gil_held_share(sites[0], days)
-    row("  CPU time per fleet-day", f"{1e3 * cpu:.0f} ms",
-        f"{60 / cpu:.0f} fleet-days per CPU-minute")
-    row("  share of it holding the GIL (outside the compiled passes)", f"{100 * held:.0f} %",
-        f"2 threads at most {min(2.0, 1.0 / held):.2f} x one")
-    row("  fleet-days per minute on 2 cores of our own (from CPU time)",
-        f"{min(2.0, 1.0 / held) * 60 / cpu:.0f}", "target >= 500 (13.5 h days)")
-    t0 = time.perf_counter()
-    with ThreadPoolExecutor(2) as pool:
-        list(pool.map(lambda s: [s.day(d) for d in range(days)], sites))
-    both = time.perf_counter() - t0
-    row("  fleet-days per minute, 2 threads", f"{60 * 2 * days / both:.0f}",
-        "wall clock: what the machine's load left us")
-
-
-def gil_held_share(site: Site, days: int) -> float:
-    """The share of a fleet-day's CPU time spent outside the GIL-free compiled passes (the
-    reference driving, and the physics with its scoring): what two threads cannot overlap."""
-    inside = [0.0]
-
-    def timed(method):
-        def call(*args):
-            t0 = time.thread_time()
-            method(*args)
-            inside[0] += time.thread_time() - t0
-        return call
-
-    for batch in site.lines:
-        batch.drive, batch.run = timed(batch.drive), timed(batch.run)
-    t0 = time.thread_time()
-    for d in range(days):
-        site.day(d)
-    total = time.thread_time() - t0
-    for batch in site.lines:
-        del batch.drive, batch.run
-    return 1.0 - inside[0] / total
+    print(f"  one fleet-day: {spec.lines[0].buses} buses, {service_h:g} h, {days} days per "
+          "thread; 'own cores': the wall time less the waits for a CPU that other jobs caused")
+    for threads in (1, 2):
+        wall, cpu, own = run_threads(sites[:threads], days)
+        n = threads * days
+        row(f"{threads} thread(s): fleet-days per minute", f"{60 * n / wall:.0f}",
+            f"wall clock; CPU time {1e3 * cpu:.0f} ms per fleet-day")
+        row("  fleet-days per minute on own cores", f"{60 * n / own:.0f}" if own > 0 else "n/a",
+            "target >= 500 on 2 cores (13.5 h days)" if threads == 2 else "")
 
 
 def ray_side_by_side(n: int, service_h: float) -> None:
