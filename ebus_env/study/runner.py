@@ -122,17 +122,9 @@ class Site:
                 batch.drive(0, batch.n)
             connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
             rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
-            rows = _gather([b.rows for b in lines])
-            live = None if rows.min() == connected.shape[1] else \
-                np.arange(connected.shape[1])[None, :] < rows[:, None]  # a short last decision
-            wanted = float(connected.sum() if live is None else (connected * live).sum())
-            if infra.terminal_chargers == 0:
-                connected[:] = 0.0
-                rating[:] = math.nan
-            else:
-                share_site(connected, rating, self.efficiency, plugged, waiting_since,
-                           infra.terminal_chargers, limit_w, k * connected.shape[1])
-            held = float(connected.sum() if live is None else (connected * live).sum())
+            wanted, held = _share(connected, rating, _gather([b.rows for b in lines]),
+                                  self.efficiency, plugged, waiting_since,
+                                  infra.terminal_chargers, limit_w, k * connected.shape[1])
             busy_rows += held
             wait_rows += wanted - held
             for batch, (lo, hi) in zip(lines, edges, strict=True):
@@ -179,6 +171,31 @@ class Site:
             "load_step_s": step_s,
             "site_load_kw": load_kw,
         }
+
+
+@numba.njit(cache=True, nogil=True)
+def _share(connected, rating_w, rows, efficiency, plugged, waiting_since, chargers, limit_w,
+           row0):
+    """The terminal's plugs and limit shared over a decision's rows (``share_site``; with no
+    terminal charger nobody connects). Returns the bus-rows that wanted a plug and those
+    that held one, counting each bus's ``rows`` (a last decision may be short)."""
+    wanted = _live_rows(connected, rows)
+    if chargers == 0:
+        connected[:] = 0.0
+        rating_w[:] = math.nan
+    else:
+        share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
+                   row0)
+    return wanted, _live_rows(connected, rows)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _live_rows(connected, rows):
+    total = 0.0  # sums of 0s and 1s: exact in any order
+    for b in range(connected.shape[0]):
+        for r in range(rows[b]):
+            total += connected[b, r]
+    return total
 
 
 @numba.njit(cache=True, nogil=True)
