@@ -83,6 +83,14 @@ class Site:
                     _IDLE.setdefault((repr(batch.config), batch.n), []).append(batch)
         self.lines = []
 
+    def _site_arrays(self) -> tuple[np.ndarray, ...]:
+        """Every bus's terminal rows (charger connected, its rating) and the rows of its last
+        decision: a single line's own arrays (views that stay current), else copies."""
+        lines = self.lines
+        return (_gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines]),
+                _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines]),
+                _gather([b.rows for b in lines]))
+
     def day(self, day: int) -> dict:
         """Simulate one seeded day; the row of results (before costs)."""
         spec, infra, cfg = self.spec, self.scenario.infrastructure, self.cfg
@@ -106,6 +114,7 @@ class Site:
         busy_rows = wait_rows = 0.0
         limit_w = 1e3 * infra.site_limit_kw
         lines, edges = self.lines, list(zip(self.edges[:-1], self.edges[1:], strict=True))
+        views = self._site_arrays() if len(lines) == 1 else None  # one line: once a day
         for k in range(n_steps):
             if self.policy is not None or k == 0:  # fixed settings: the same every decision
                 if self.policy is not None:
@@ -120,9 +129,8 @@ class Site:
                     batch.values[:] = v[lo:hi]
             for batch in lines:
                 batch.drive(0, batch.n)
-            connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
-            rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
-            wanted, held = _share(connected, rating, _gather([b.rows for b in lines]),
+            connected, rating, rows = views or self._site_arrays()
+            wanted, held = _share(connected, rating, rows,
                                   self.efficiency, plugged, waiting_since,
                                   infra.terminal_chargers, limit_w, k * connected.shape[1])
             busy_rows += held
