@@ -180,6 +180,18 @@ def test_parallel_study_equals_a_serial_one(tmp_path):
     assert [r["cost_per_km"] for r in fresh] == serial["cost_per_km"].tolist()
 
 
+def test_a_scenarios_days_split_over_threads_equal_one_run(tmp_path):
+    spec = load_study(small(**{"infrastructure.terminal_chargers": 2, "strategies": [
+        {"name": "baseline"}], "days.count": 3}))
+    said = []
+    split = run_study(spec, tmp_path / "split", workers=2, say=said.append)
+    assert said.count("  T2x450kW_D1x100kW_L500kW__baseline: done") == 1  # one file, when whole
+    whole = pd.DataFrame(run_scenario(spec, scenarios(spec)[0]))
+    assert split["day"].tolist() == [0, 1, 2]
+    assert split["cost_per_km"].tolist() == whole["cost_per_km"].tolist()
+    assert split["site_peak_15min_kw"].tolist() == whole["site_peak_15min_kw"].tolist()
+
+
 # -- results on disk ---------------------------------------------------------------------------
 def test_rows_stream_per_scenario_and_resume_skips_finished(tmp_path):
     spec = load_study(small(**{"infrastructure.terminal_chargers": 2, "days.count": 1}))

@@ -253,13 +253,15 @@ def depot(energy_kwh: np.ndarray, chargers: int, charger_kw: float, limit_kw: fl
     return load, int((left > 1e-6).sum()), busy_h
 
 
-def run_scenario(spec: StudySpec, scenario: Scenario) -> list[dict]:
-    """Every day of ``scenario``: one row each, with the costs per km."""
+def run_scenario(spec: StudySpec, scenario: Scenario, days: list[int] | None = None
+                 ) -> list[dict]:
+    """The ``days`` (default: every day) of ``scenario``: one row each, with the costs per
+    km."""
     site = Site(spec, scenario)
     infra, costs = scenario.infrastructure, spec.costs
     rows = []
     try:
-        for day in range(spec.days.count):
+        for day in range(spec.days.count) if days is None else days:
             row = site.day(day)
             cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
                              site.cfg.start_time_h, row["site_peak_15min_kw"],
