@@ -682,7 +682,8 @@ def study(
     resume: Annotated[bool, typer.Option(help="Skip the scenarios already in --out")] = False,
     use_ray: Annotated[bool, typer.Option("--ray", help="Run the scenarios on Ray")] = False,
     address: Annotated[str | None, typer.Option(help="Join the Ray cluster at host:port")] = None,
-    workers: Annotated[int | None, typer.Option(help="CPUs of a local Ray runtime")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Threads in this process, or CPUs of a local Ray runtime (default: every CPU)")] = None,
 ):
     """A fleet study: charging options x strategies over seeded days, by cost and grid load."""
 

@@ -17,7 +17,7 @@ from ebus_env.study import load_study, read_results
 from ebus_env.study.backends import run_study
 from ebus_env.study.costs import CostModel
 from ebus_env.study.results import rows_dir
-from ebus_env.study.runner import depot, run_scenario
+from ebus_env.study.runner import depot, forget_batches, run_scenario
 from ebus_env.study.scenarios import scenarios
 from ebus_env.study.summary import pareto_front, write_summary
 
@@ -161,6 +161,35 @@ def test_a_study_is_deterministic(small_rows):
     again = pd.DataFrame(run_scenario(spec, scenarios(spec)[0]))
     first = rows[rows["scenario"] == scenarios(spec)[0].name].reset_index(drop=True)
     assert again["cost_per_km"].tolist() == first["cost_per_km"].tolist()
+
+
+def test_parallel_study_equals_a_serial_one(tmp_path):
+    # two threads, and batches handed from one scenario to the next: the rows stay bit-identical
+    spec = load_study(small(**{"infrastructure.terminal_chargers": [1, 2, 3]}))
+    serial = run_study(spec, tmp_path / "serial", workers=1, say=lambda _: None)
+    parallel = run_study(spec, tmp_path / "parallel", workers=2, say=lambda _: None)
+    assert len(serial) == 2 * len(scenarios(spec)) == 12
+    pd.testing.assert_frame_equal(parallel.drop(columns="site_load_kw"),
+                                  serial.drop(columns="site_load_kw"), check_exact=True)
+    for a, b in zip(parallel["site_load_kw"], serial["site_load_kw"], strict=True):
+        assert np.array_equal(a, b)
+    fresh = []
+    for s in scenarios(spec):  # each on new batches
+        forget_batches()
+        fresh += run_scenario(spec, s)
+    assert [r["cost_per_km"] for r in fresh] == serial["cost_per_km"].tolist()
+
+
+def test_a_scenarios_days_split_over_threads_equal_one_run(tmp_path):
+    spec = load_study(small(**{"infrastructure.terminal_chargers": 2, "strategies": [
+        {"name": "baseline"}], "days.count": 3}))
+    said = []
+    split = run_study(spec, tmp_path / "split", workers=2, say=said.append)
+    assert said.count("  T2x450kW_D1x100kW_L500kW__baseline: done") == 1  # one file, when whole
+    whole = pd.DataFrame(run_scenario(spec, scenarios(spec)[0]))
+    assert split["day"].tolist() == [0, 1, 2]
+    assert split["cost_per_km"].tolist() == whole["cost_per_km"].tolist()
+    assert split["site_peak_15min_kw"].tolist() == whole["site_peak_15min_kw"].tolist()
 
 
 # -- results on disk ---------------------------------------------------------------------------

@@ -18,7 +18,7 @@ import yaml
 from ebus_env.errors import ConfigError
 from ebus_env.outputs import write_text
 from ebus_env.study.results import finished, read_results, write_rows
-from ebus_env.study.scenarios import Scenario, scenarios
+from ebus_env.study.scenarios import scenarios
 from ebus_env.study.spec import StudySpec
 
 MAX_RETRIES = 3  # runs of a task whose worker died, after the first
@@ -36,7 +36,8 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
     use_ray, address, workers
         Run on Ray: join the cluster at ``address`` (``host:port``), else start a local
         runtime with ``workers`` CPUs. In this process: ``workers`` threads (the compiled
-        passes release the GIL). None: every CPU (``$EBUS_THREADS``).
+        passes release the GIL), a scenario's days split over them when there are fewer
+        scenarios than threads. None: every CPU (``$EBUS_THREADS``).
     """
     out = Path(out)
     done = finished(out)
@@ -51,14 +52,27 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         f"{'on Ray' if use_ray else 'in this process'}")
     t0 = time.perf_counter()
 
-    def finished_one(args: tuple[StudySpec, Scenario], rows: list[dict]) -> None:
-        write_rows(out, args[1].key(spec), rows)
-        say(f"  {args[1].name}: done")
+    from ebus_env.model.model import default_threads
+    from ebus_env.study.runner import forget_batches, run_scenario
 
-    from ebus_env.study.runner import run_scenario
+    # fewer scenarios than threads: each scenario's days are split over the idle threads
+    # (every day is seeded on its own, so a part's rows equal the whole run's)
+    parts = 1 if use_ray or not todo else min(spec.days.count, -(-(
+        workers or default_threads()) // len(todo)))
+    days = [list(range(spec.days.count))[i::parts] for i in range(parts)]
+    got: dict[int, list[dict]] = {}  # rows of the scenarios with days still running
 
-    map_tasks(run_scenario, [(spec, s) for s in todo], finished_one, use_ray=use_ray,
-              address=address, workers=workers)
+    def finished_one(args: tuple, rows: list[dict]) -> None:
+        scenario = args[1]
+        got.setdefault(scenario.index, []).extend(rows)
+        if len(got[scenario.index]) == spec.days.count:
+            rows = sorted(got.pop(scenario.index), key=lambda r: r["day"])
+            write_rows(out, scenario.key(spec), rows)
+            say(f"  {scenario.name}: done")
+
+    forget_batches()
+    map_tasks(run_scenario, [(spec, s, d) for s in todo for d in days], finished_one,
+              use_ray=use_ray, address=address, workers=workers)
     if todo:
         say(f"ran {len(todo)} scenario(s) in {time.perf_counter() - t0:.1f} s")
     return read_results(out)

@@ -14,9 +14,10 @@ import importlib
 import math
 import threading
 
+import numba
 import numpy as np
 
-from ebus_env.envs.batch import BusBatch
+from ebus_env.envs.batch import ELAPSED_ROWS, OUT, BusBatch
 from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
 from ebus_env.envs.spec import ACTIONS, physical
 from ebus_env.errors import ConfigError
@@ -24,9 +25,28 @@ from ebus_env.study.scenarios import Scenario
 from ebus_env.study.spec import StudySpec
 
 SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
+DISTANCE_KM, EMPTY = OUT.index("distance_km"), OUT.index("empty")
 
 
 _BUILD = threading.Lock()  # models are built (compiled or loaded) one at a time
+# Idle batches of finished scenarios, by (env config, buses): a later scenario with the same
+# line config (most of a study's grid: only the charger rating and decision_s reach the bus
+# config) takes one instead of building its model again. Every day resets all its buses.
+_IDLE: dict[tuple[str, int], list[BusBatch]] = {}
+MAX_IDLE = 64
+
+
+def take_batch(cfg, n: int) -> BusBatch:
+    """A batch of ``n`` buses of the env config ``cfg``: an idle one, else a new one."""
+    with _BUILD:
+        idle = _IDLE.get((repr(cfg), n))
+        return idle.pop() if idle else BusBatch(cfg, n)
+
+
+def forget_batches() -> None:
+    """Drop the idle batches (a new study reads its bus and cycle files afresh)."""
+    with _BUILD:
+        _IDLE.clear()
 
 
 class Site:
@@ -37,8 +57,7 @@ class Site:
         infra, strategy = scenario.infrastructure, scenario.strategy
         self.lines = []
         for line in spec.lines:
-            with _BUILD:
-                batch = BusBatch(spec.env_config(line, infra, strategy), line.buses)
+            batch = take_batch(spec.env_config(line, infra, strategy), line.buses)
             period_s = batch.lap_period_s / line.buses if line.headway_min is None \
                 else 60.0 * line.headway_min
             batch.offsets_s = np.arange(line.buses) * period_s
@@ -55,6 +74,22 @@ class Site:
             for b in self.lines])
         self.settings = np.array([v for _, v in strategy.settings])
         self.policy = policy(strategy.policy, strategy.policy_args) if strategy.policy else None
+
+    def close(self) -> None:
+        """Leave the batches idle for a later scenario (:func:`take_batch`)."""
+        with _BUILD:
+            for batch in self.lines:
+                if sum(map(len, _IDLE.values())) < MAX_IDLE:
+                    _IDLE.setdefault((repr(batch.config), batch.n), []).append(batch)
+        self.lines = []
+
+    def _site_arrays(self) -> tuple[np.ndarray, ...]:
+        """Every bus's terminal rows (charger connected, its rating) and the rows of its last
+        decision: a single line's own arrays (views that stay current), else copies."""
+        lines = self.lines
+        return (_gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines]),
+                _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines]),
+                _gather([b.rows for b in lines]))
 
     def day(self, day: int) -> dict:
         """Simulate one seeded day; the row of results (before costs)."""
@@ -78,49 +113,40 @@ class Site:
         empty_left_h = np.full(self.n, np.nan)
         busy_rows = wait_rows = 0.0
         limit_w = 1e3 * infra.site_limit_kw
+        lines, edges = self.lines, list(zip(self.edges[:-1], self.edges[1:], strict=True))
+        views = self._site_arrays() if len(lines) == 1 else None  # one line: once a day
         for k in range(n_steps):
-            if self.policy is not None:
-                obs = np.concatenate([b.obs for b in self.lines])
-                obs[:, PLUGGED] = plugged
-                values = physical(np.clip(np.asarray(self.policy.predict(
-                    obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)), -1, 1))
-            v = values.copy()
-            v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
-            for batch, lo, hi in zip(self.lines, self.edges[:-1], self.edges[1:], strict=True):
-                batch.values[:] = v[lo:hi]
+            if self.policy is not None or k == 0:  # fixed settings: the same every decision
+                if self.policy is not None:
+                    obs = np.concatenate([b.obs for b in lines])
+                    obs[:, PLUGGED] = plugged
+                    values = physical(np.clip(np.asarray(self.policy.predict(
+                        obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)),
+                        -1, 1))
+                v = values.copy()
+                v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
+                for batch, (lo, hi) in zip(lines, edges, strict=True):
+                    batch.values[:] = v[lo:hi]
+            for batch in lines:
                 batch.drive(0, batch.n)
-            lines = self.lines
-            connected = _gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines])
-            rating = _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines])
-            rows = _gather([b.rows for b in lines])
-            live = None if rows.min() == connected.shape[1] else \
-                np.arange(connected.shape[1])[None, :] < rows[:, None]  # a short last decision
-            wanted = float(connected.sum() if live is None else (connected * live).sum())
-            if infra.terminal_chargers == 0:
-                connected[:] = 0.0
-                rating[:] = math.nan
-            else:
-                share_site(connected, rating, self.efficiency, plugged, waiting_since,
-                           infra.terminal_chargers, limit_w, k * connected.shape[1])
-            held = float(connected.sum() if live is None else (connected * live).sum())
+            connected, rating, rows = views or self._site_arrays()
+            wanted, held = _share(connected, rating, rows,
+                                  self.efficiency, plugged, waiting_since,
+                                  infra.terminal_chargers, limit_w, k * connected.shape[1])
             busy_rows += held
             wait_rows += wanted - held
-            for batch, lo, hi in zip(lines, self.edges[:-1], self.edges[1:], strict=True):
+            for batch, (lo, hi) in zip(lines, edges, strict=True):
                 if len(lines) > 1:  # one line shares its own arrays (views), the others copy
                     batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
                     batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
                 batch.run(0, batch.n)
             site_kw[k] = _gather([b.column("grid_kwh") for b in lines]).sum() / (step_s / 3600.0)
-            chem = _gather([b.quantities[:, 0] for b in lines])
-            net_kwh += chem
-            discharged_kwh += np.maximum(chem, 0.0)
-            distance_km += _gather([b.column("distance_km") for b in lines])
-            np.minimum(lowest_soc, _gather([b.obs[:, 0] for b in lines]), out=lowest_soc)
-            first = (_gather([b.column("empty") for b in lines]) > 0) & np.isnan(empty_left_h)
-            if first.any():
-                left = cfg.service_h - _gather([b.elapsed_h() for b in lines])
-                empty_left_h[first] = np.maximum(left[first], 0.0)
-            if all(b.ended()[1].all() for b in lines):
+            ended = True
+            for batch, (lo, _) in zip(lines, edges, strict=True):
+                ended &= _tally(batch.out, batch.quantities, batch.obs, batch.book, lo,
+                                batch.service_rows, cfg.service_h, cfg.dt_s, net_kwh,
+                                discharged_kwh, distance_km, lowest_soc, empty_left_h)
+            if ended:
                 site_kw = site_kw[:k + 1]
                 break
         dt_s = cfg.dt_s
@@ -155,6 +181,51 @@ class Site:
         }
 
 
+@numba.njit(cache=True, nogil=True)
+def _share(connected, rating_w, rows, efficiency, plugged, waiting_since, chargers, limit_w,
+           row0):
+    """The terminal's plugs and limit shared over a decision's rows (``share_site``; with no
+    terminal charger nobody connects). Returns the bus-rows that wanted a plug and those
+    that held one, counting each bus's ``rows`` (a last decision may be short)."""
+    wanted = _live_rows(connected, rows)
+    if chargers == 0:
+        connected[:] = 0.0
+        rating_w[:] = math.nan
+    else:
+        share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
+                   row0)
+    return wanted, _live_rows(connected, rows)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _live_rows(connected, rows):
+    total = 0.0  # sums of 0s and 1s: exact in any order
+    for b in range(connected.shape[0]):
+        for r in range(rows[b]):
+            total += connected[b, r]
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def _tally(out, quantities, obs, book, lo, service_rows, service_h, dt_s, net_kwh,
+           discharged_kwh, distance_km, lowest_soc, empty_left_h) -> bool:
+    """Add a line's decision to the day's sums per bus (the line's buses from ``lo`` of the
+    site): chemical energy net and discharged [kWh], distance [km], lowest SoC, and the
+    service hours left when a bus first ran empty. True when every bus has ended service."""
+    ended = True
+    for b in range(out.shape[0]):
+        i = lo + b
+        chem_kwh = quantities[b, 0]
+        net_kwh[i] += chem_kwh
+        discharged_kwh[i] += max(chem_kwh, 0.0)
+        distance_km[i] += out[b, DISTANCE_KM]
+        lowest_soc[i] = min(lowest_soc[i], obs[b, 0])
+        if out[b, EMPTY] > 0.0 and math.isnan(empty_left_h[i]):
+            empty_left_h[i] = max(service_h - book[b, ELAPSED_ROWS] * dt_s / 3600.0, 0.0)
+        ended &= book[b, ELAPSED_ROWS] >= service_rows - 0.5
+    return ended
+
+
 def _gather(arrays: list[np.ndarray]) -> np.ndarray:
     """The buses of every line in one array: a line's own array (a view) when there is one."""
     return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
@@ -182,22 +253,27 @@ def depot(energy_kwh: np.ndarray, chargers: int, charger_kw: float, limit_kw: fl
     return load, int((left > 1e-6).sum()), busy_h
 
 
-def run_scenario(spec: StudySpec, scenario: Scenario) -> list[dict]:
-    """Every day of ``scenario``: one row each, with the costs per km."""
+def run_scenario(spec: StudySpec, scenario: Scenario, days: list[int] | None = None
+                 ) -> list[dict]:
+    """The ``days`` (default: every day) of ``scenario``: one row each, with the costs per
+    km."""
     site = Site(spec, scenario)
     infra, costs = scenario.infrastructure, spec.costs
     rows = []
-    for day in range(spec.days.count):
-        row = site.day(day)
-        cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
-                         site.cfg.start_time_h, row["site_peak_15min_kw"], infra.installed_kw,
-                         row["battery_discharged_kwh"])
-        km = max(row["distance_km"], 1e-9)
-        row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
-        row["cost_per_km"] = sum(cost.values()) / km
-        row["cost_day"] = sum(cost.values())
-        row["kwh_per_km"] = row["grid_kwh"] / km
-        rows.append({**scenario.columns(), "day": day, **row})
+    try:
+        for day in range(spec.days.count) if days is None else days:
+            row = site.day(day)
+            cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
+                             site.cfg.start_time_h, row["site_peak_15min_kw"],
+                             infra.installed_kw, row["battery_discharged_kwh"])
+            km = max(row["distance_km"], 1e-9)
+            row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
+            row["cost_per_km"] = sum(cost.values()) / km
+            row["cost_day"] = sum(cost.values())
+            row["kwh_per_km"] = row["grid_kwh"] / km
+            rows.append({**scenario.columns(), "day": day, **row})
+    finally:
+        site.close()
     return rows
 
 
