@@ -302,7 +302,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2) -> None:
             line(f"{row['source']}/{row['case']}", str(row["verdict"] or row["status"]),
                  f"expected {row['expected']}; top {row['top']}; clue {row['clue']}; "
                  f"{row['estimate'] or ''} (truth {row['truth'] or '-'}){fall}; "
-                 f"{row['time_s']:.0f} s")
+                 f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
     confusion(rows)
     f = figures(rows)
     print("\nFigures against their bars")

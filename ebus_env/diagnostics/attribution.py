@@ -44,6 +44,10 @@ TIE = 0.01  # held-out shares this close are equal
 BOOT_BLOCK = 6  # windows per bootstrap block (30 min of 5-min windows)
 BOOT_DRAWS = 400
 CONFIDENCE = 0.95  # a winner beats the runner-up in this share of the bootstrap draws
+NUISANCE_STEPS = 1.0
+"""How far a calibrated (nuisance) parameter may move back when an effect is added, in its
+signature's steps (10 % of its range): unbounded, a dozen collinear signatures over-fit the
+training windows and predict the held-out ones worse than nothing."""
 HUBER_C = 3.0  # noise units: a window this far off is an outlier (a driver's action, a glitch)
 
 
@@ -80,8 +84,9 @@ def _bounds(nonneg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(nonneg, 0.0, -np.inf), np.full(len(nonneg), np.inf)
 
 
-def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray) -> np.ndarray:
-    """Weighted robust least squares, coefficients >= 0 where asked::
+def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray,
+         bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Weighted robust least squares, coefficients >= 0 where asked (or within ``bounds``)::
 
         min_beta  sum_w huber(sqrt(w) (y - x beta))
 
@@ -90,7 +95,7 @@ def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray) -> np.
     solution (``lsq_linear``)."""
     sw = np.sqrt(w)
     a, b = x * sw[:, None], y * sw
-    low, high = _bounds(nonneg)
+    low, high = bounds or _bounds(nonneg)
     start = lsq_linear(a, b, bounds=(low, high)).x
     if not np.any(np.abs(a @ start - b) > HUBER_C):
         return start  # no window in the linear part of the loss: least squares is the answer
@@ -117,10 +122,10 @@ def held_out_explained(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.n
     return 1.0 - lost / total if total > 0 else 0.0
 
 
-def _loss(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray) -> tuple[
-        float, np.ndarray]:
-    """Huber loss of the best fit of y by the columns of x, and the coefficients."""
-    beta = _fit(x, y, w, nonneg)
+def _loss(x: np.ndarray, y: np.ndarray, w: np.ndarray, bounds) -> tuple[float, np.ndarray]:
+    """Huber loss of the best fit of y by the columns of x (coefficients within ``bounds``),
+    and the coefficients."""
+    beta = _fit(x, y, w, np.zeros(x.shape[1], bool), bounds)
     return float(np.sum(huber(np.sqrt(w) * (y - x @ beta)))), beta
 
 
@@ -133,11 +138,14 @@ def held_out_best(variants: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: bo
     the share, the variant that fits all windows best, its coefficient, and per window the
     held-out loss and the loss of predicting nothing (for the bootstrap)."""
     extra = np.zeros((len(y), 0)) if nuisance is None else nuisance
-    signs = np.array([nonneg] + [False] * extra.shape[1])
+    signs = np.zeros(1 + extra.shape[1])
+    bounds = (np.concatenate([[0.0 if nonneg else -np.inf], np.full(extra.shape[1],
+                                                                   -NUISANCE_STEPS)]),
+              np.concatenate([[np.inf], np.full(extra.shape[1], NUISANCE_STEPS)]))
     sw = np.sqrt(w)
 
     def fits(rows):
-        return [_loss(np.column_stack([v[rows], extra[rows]]), y[rows], w[rows], signs)
+        return [_loss(np.column_stack([v[rows], extra[rows]]), y[rows], w[rows], bounds)
                 for v in variants]
 
     lost = np.zeros(len(y))

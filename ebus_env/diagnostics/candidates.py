@@ -19,8 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import lsq_linear
 
 from ebus_env.config import BusConfig
+from ebus_env.diagnostics.attribution import NUISANCE_STEPS
 from ebus_env.diagnostics.residual import window_power
 from ebus_env.effects.base import Effect, registered_effects
 from ebus_env.errors import EbusError
@@ -182,7 +184,8 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
                       draws: np.ndarray | None = None) -> Strength:
     """The value of the effect's first strength parameter at which the effect's extra power
     best matches the missing power on the ``fit`` windows (weighted least squares, the
-    ``nuisance`` columns, calibrated parameters' signatures, free to re-adjust): the best of
+    ``nuisance`` columns, calibrated parameters' signatures, free to re-adjust by
+    ``NUISANCE_STEPS``): the best of
     the candidate's signatures, then a finer grid around it, refined by a parabola through
     the best three points. The interval repeats the fit on each bootstrap draw (``draws``:
     counts per fit window, see :func:`~ebus_env.diagnostics.attribution.block_draws`) over
@@ -204,8 +207,8 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
                 rr = r
                 if n_other:
                     root = np.sqrt(c)
-                    rr = r - others @ np.linalg.lstsq(others * root[:, None], r * root,
-                                                      rcond=None)[0]
+                    rr = r - others @ lsq_linear(others * root[:, None], r * root,
+                                                 bounds=(-NUISANCE_STEPS, NUISANCE_STEPS)).x
                 out[d, g] = c @ (rr * rr)
         return out
 

@@ -396,8 +396,7 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
             say(f"re-fitting with {verdict}")
             local = replace(settings or ISOPTSettings(), iterations=0)
             rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
-                                  polish_starts, f"+ {verdict}", start=after_values,
-                                  model=best.model)
+                                  1, f"+ {verdict}", start=after_values, model=best.model)
             after_values = rung.values
             nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
     if first_rung is not None and not ladder:

@@ -26,13 +26,14 @@ NUISANCE = {
     "rolling_resistance.rolling_coef": (0.5, 1.5),
     "auxiliaries.base_power_w": (0.0, 3.0),
     "efficiency_map.gearbox_efficiency": (0.9, 1.04),
-    "rint_battery.cell_capacity_ah": (0.8, 1.2),
+    "rint_battery.cell_capacity_ah": (0.6, 1.6),
     "rint_battery.cell_resistance_mohm": (0.3, 3.0),
 }
 """The parameters that differ from bus to bus of one type (mass, rolling resistance,
 auxiliary base load, drivetrain efficiency, pack capacity and resistance), with the range a
 calibration searches as factors of the configured value (within the declared bounds): wide
-enough for a fleet's spread, narrow enough that they cannot stand in for a missing effect."""
+enough for a fleet's spread (the pack's, which the charging events pin down, also for another
+pack than the configured one), narrow enough that they cannot stand in for a missing effect."""
 BLOCK_S = 3600.0
 MIN_BLOCKS = 4
 SCAN = 11
