@@ -1,0 +1,327 @@
+"""The out-of-family cases: one randomised service day per case, one hidden effect per day.
+
+    python -m benchmarks.truth.cases --out DIR [--n-per-effect 10] [--n-control 30]
+
+writes ``DIR/<case_id>.csv.gz`` (the degraded 1 Hz log; gzip with mtime 0, so the bench is
+byte-reproducible) and ``DIR/truth.json`` (one truth record per case, see ``generate``).
+
+Every case has its own seed, drawn from the bench seed; the day's plan, base bus, hidden
+effect's values and log degradation come from independent streams of that seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import io
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.truth.days import _SEASONS, route_day
+from benchmarks.truth.degrade import degrade
+from benchmarks.truth.sim import HIDDEN, simulate
+from benchmarks.truth.vehicles import draw_base
+
+SOURCE = "truthsim"
+MIN_SOC_FRAC = 0.10
+DEFAULT_SEED = 20230117
+
+# hidden effect -> (library effect the diagnosis should name, climate of the day)
+EFFECTS = {
+    "road_grade": ("road_grade", "mild"),
+    "cabin_heating": ("cabin_hvac", "cold"),
+    "cabin_cooling": ("cabin_hvac", "hot"),
+    "regen_soc_limit": ("regen_soc_limit", "mild"),
+    "cold_battery": ("ambient_battery", "cold"),
+    "passenger_mass": ("passenger_mass", "mild"),
+    "aux_schedule": ("aux_schedule", "cold"),
+    "air_compressor": ("outside_library", "mild"),
+    "battery_chiller": ("outside_library", "mild"),
+}
+assert set(EFFECTS) == set(HIDDEN)
+# effects whose power depends on the clock: their logs always carry time stamps
+CLOCK_BOUND = {"cabin_heating", "cabin_cooling", "aux_schedule"}
+MODES = ("accelerating", "cruising", "braking/regen", "idle", "CC charging", "CV charging")
+
+# The library's default ``aux_schedule`` table ("evening_lights": hours -> W), used only to
+# express the truth's lights as the library's ``scale`` parameter.
+LIBRARY_SCHEDULE_H = (0.0, 6.0, 7.0, 16.0, 17.0, 22.0, 23.0, 24.0)
+LIBRARY_SCHEDULE_W = (500.0, 500.0, 0.0, 0.0, 500.0, 500.0, 500.0, 500.0)
+
+
+@dataclass(frozen=True)
+class Case:
+    """What defines one case; ``generate`` makes its log and truth record."""
+
+    case_id: str
+    hidden: str | None
+    seed: int
+    chemistry: str
+    route: str
+    start_clock_h: float
+    hours: float
+    relative_time: bool
+    climate: str
+
+
+def cases(n_per_effect: int = 10, n_control: int = 30, seed: int = DEFAULT_SEED,
+          effects: tuple[str, ...] | None = None) -> list[Case]:
+    """The case list: ``n_per_effect`` days per hidden effect, then ``n_control`` days with
+    nothing hidden. Chemistry alternates LFP/NMC and the route cycles through rt7/rt44/rt45."""
+    rng = np.random.default_rng(seed)
+    routes = ("rt7", "rt44", "rt45")
+    out = []
+    for hidden in (*(effects or tuple(EFFECTS)), None):
+        count = n_control if hidden is None else n_per_effect
+        for i in range(count):
+            case_seed = int(rng.integers(2**31))
+            if hidden == "aux_schedule":  # the day runs into the dark evening
+                start, hours = rng.uniform(11.0, 14.0), rng.uniform(8.0, 10.0)
+            else:
+                start, hours = rng.uniform(5.0, 8.5), rng.uniform(8.0, 10.0)
+            relative = hidden not in CLOCK_BOUND and rng.random() < 0.3
+            out.append(Case(
+                case_id=f"{hidden or 'control'}_{i:02d}", hidden=hidden, seed=case_seed,
+                chemistry=("LFP", "NMC")[i % 2], route=routes[i % 3],
+                start_clock_h=round(float(start), 3), hours=round(float(hours), 3),
+                relative_time=bool(relative),
+                climate=EFFECTS[hidden][1] if hidden else "mild"))
+    return out
+
+
+def _physical(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame,
+              chemistry: str) -> tuple[dict, dict]:
+    """The hidden effect's truth values and the day options (start SoC, charger stop SoC)."""
+    # below the top, where the cells' voltage limit would itself cut regeneration
+    stop = rng.uniform(0.85, 0.90) if chemistry == "LFP" else rng.uniform(0.80, 0.88)
+    day = {"soc0_frac": rng.uniform(0.6, stop), "charge_stop_frac": stop}
+    ph: dict[str, float] = {}
+    if hidden in ("cabin_heating", "cabin_cooling"):
+        heating = hidden == "cabin_heating"
+        ph = {
+            # envelope: ~140 m^2 of walls, roof, floor and glazing at U 2-4 W/(m^2 K)
+            "ua_w_per_k": rng.uniform(300.0, 550.0),
+            "heat_capacity_j_per_k": rng.uniform(0.6e6, 1.2e6),  # air + seats and panels
+            "fresh_air_kg_per_s": rng.uniform(0.3, 0.5),  # EN 14750-1 fresh-air class
+            "door_air_m3_per_s": rng.uniform(0.4, 1.0),
+            "solar_area_m2": rng.uniform(3.0, 6.0),  # glazing x transmittance
+            "setpoint_degc": rng.uniform(17.0, 20.0) if heating else rng.uniform(22.0, 25.0),
+            "heating_max_w": 24e3, "cooling_max_w": 25e3,
+            "heat_pump_max_w": rng.uniform(10e3, 16e3),
+            "kp_w_per_k": 3000.0, "ki_w_per_k_s": 5.0, "blower_w": rng.uniform(400.0, 800.0),
+        }
+    elif hidden == "regen_soc_limit":
+        top = 0.985 if chemistry == "LFP" else 0.97
+        day = {"soc0_frac": rng.uniform(top - 0.05, top), "charge_stop_frac": top}
+        ph = {"derate_soc_frac": rng.uniform(0.80, 0.90)}
+    elif hidden == "cold_battery":
+        # parked in a depot hall overnight: the pack starts above the ambient
+        ph = {"start_offset_k": rng.uniform(0.0, 15.0),
+              "pack_heat_capacity_j_per_k": rng.uniform(1.4e6, 2.2e6),  # ~1.8 t x 1 kJ/(kg K)
+              "pack_ha_w_per_k": rng.uniform(80.0, 200.0)}
+        ph["pack_temp0_degc"] = float(plan["ambient_degc"].iloc[0]) + ph["start_offset_k"]
+    elif hidden == "passenger_mass":
+        ph = {"passenger_mass_kg": rng.uniform(65.0, 85.0)}  # UN R107 uses 68 kg
+    elif hidden == "aux_schedule":
+        rise, set_ = _SEASONS[plan.attrs["climate"]]["sun_h"]
+        ph = {"lights_w": rng.uniform(1000.0, 2200.0),
+              "lights_on_h": set_ - rng.uniform(0.0, 0.5),
+              "lights_off_h": rise + rng.uniform(0.0, 0.5)}
+    elif hidden == "air_compressor":
+        # electric screw/piston compressors of e-buses: 4-8 kW; governor 10.0-12.5 bar
+        ph = {"compressor_w": rng.uniform(4e3, 8e3), "fill_bar_per_s": rng.uniform(0.02, 0.035),
+              "brake_bar": rng.uniform(0.10, 0.20), "door_bar": rng.uniform(0.15, 0.30),
+              "leak_bar_per_s": rng.uniform(2e-4, 5e-4), "cut_in_bar": 10.0,
+              "cut_out_bar": 12.5}
+    elif hidden == "battery_chiller":
+        ph = {"chiller_w": rng.uniform(4e3, 9e3)}
+    return {k: float(v) for k, v in ph.items()}, {k: float(v) for k, v in day.items()}
+
+
+def modes(trace: pd.DataFrame) -> np.ndarray:
+    """Operating mode of each row (index into ``MODES``), as the diagnosis classes them."""
+    mode = np.full(len(trace), 1)
+    mode[(trace["accel_mps2"] > 0.1) & (trace["p_wheel_w"] > 0)] = 0
+    mode[(trace["p_wheel_w"] < 0) & (trace["speed_mps"] > 0.1)] = 2
+    mode[trace["speed_mps"] <= 0.1] = 3
+    plugged = (trace["charging"] == 1) & (trace["p_charger_w"] > 0)
+    mode[plugged] = 4
+    mode[plugged & (trace["cv_phase"] == 1)] = 5
+    return mode
+
+
+def _strength(hidden: str | None, ph: dict, trace: pd.DataFrame) -> dict:
+    """The truth expressed in the library's parameters, where it has an equivalent."""
+    if hidden in ("cabin_heating", "cabin_cooling"):
+        # the same quantity: envelope conductance (the library adds its own fresh-air and door
+        # terms; the truth's are in ``physical``)
+        return {"cabin_hvac.ua_w_per_k": ph["ua_w_per_k"]}
+    if hidden == "regen_soc_limit":
+        # both start derating at this SoC and reach zero at 100 %; the truth derates the
+        # charge current, the library the braking share
+        return {"regen_soc_limit.derate_soc_pct": 100.0 * ph["derate_soc_frac"]}
+    if hidden == "cold_battery":
+        # the pack starts this far above the ambient and relaxes with tau = C / hA (the
+        # truth adds Joule heating, which the library lacks)
+        return {"ambient_battery.initial_offset_k": ph["start_offset_k"],
+                "ambient_battery.time_constant_h":
+                    ph["pack_heat_capacity_j_per_k"] / ph["pack_ha_w_per_k"] / 3600.0}
+    if hidden == "passenger_mass":
+        return {"passenger_mass.passenger_mass_kg": ph["passenger_mass_kg"]}
+    if hidden == "aux_schedule":
+        # least-squares scale of the library's table to the truth's lights over the day:
+        # scale = <P_truth, S> / <S, S> on the trace's clock samples
+        shape = np.interp(trace["clock_h"] % 24.0, LIBRARY_SCHEDULE_H, LIBRARY_SCHEDULE_W)
+        load = trace["p_hidden_w"].to_numpy()
+        return {"aux_schedule.scale": float(load @ shape / (shape @ shape))}
+    return {}
+
+
+def _used_j(trace: pd.DataFrame) -> float:
+    """Energy taken by the drive, the loads and the battery's own losses over the day [J]."""
+    end = trace.iloc[-1]
+    return float(end["e_drive_dc_j"] + end["e_aux_j"] + end["e_hidden_j"]
+                 + end["e_battery_loss_j"])
+
+
+def generate(case: Case) -> tuple[pd.DataFrame, dict]:
+    """The degraded log and the truth record of one case.
+
+    The truth record holds ``case_id, source, hidden, expected_verdict`` (the library effect
+    the diagnosis should name; None for control days, ``"outside_library"`` for loads the
+    library does not have), ``outside_mode`` (the operating mode that takes most of an
+    outside load's energy; ``mode_shares`` for every hidden load), ``strength`` (library
+    ``"effect.param"`` -> truth value), ``physical`` (the truth's own values), ``base``,
+    ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the
+    logged ``columns``, the day
+    options and a summary (km, kWh/km at the battery, the hidden load's energy, and
+    ``effect_kwh``: what the effect adds to the energy used against the same day without it).
+    """
+    plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
+    base = draw_base(np.random.default_rng(base_ss), case.chemistry)
+    # An operator plans charging so that the bus finishes its day: when the drawn chargers
+    # leave the pack below MIN_SOC_FRAC, the same day is run with 450 kW at both terminals.
+    full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
+    # regen-limit days are topped up at every layover, so the bus runs at high SoC
+    for chargers in ((full,) if case.hidden == "regen_soc_limit" else ({}, full)):
+        plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
+                         case.route, climate=case.climate, **chargers)
+        phys_rng = np.random.default_rng(phys_ss)
+        base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
+        ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
+        trace = simulate(plan, base, case.hidden, ph, **day)
+        if trace["soc_frac"].min() >= MIN_SOC_FRAC:
+            break
+    else:
+        raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
+                           f"(SoC {100 * trace['soc_frac'].min():.1f} %)")
+    # the hidden effect's size: the energy the loads and the battery's losses take, with the
+    # effect against the same day without it
+    without = trace if case.hidden is None else simulate(plan, base, None, {}, **day)
+    logged = ["time_s", "clock_h", "speed_mps", "soc_frac", "ambient_degc", "charging",
+              "charger_kw", "door_open"]
+    if case.hidden == "road_grade":
+        logged.append("altitude_m")
+    if case.hidden == "passenger_mass":
+        logged.append("passengers")
+    clean = trace[logged].copy()
+    clean.attrs.update(trace.attrs)
+    log = degrade(clean, np.random.default_rng(log_ss), relative_time=case.relative_time)
+
+    mode = modes(trace)
+    hidden_j = float(trace["e_hidden_j"].iloc[-1])
+    shares = None
+    if hidden_j > 0.0:
+        per = np.bincount(mode, weights=trace["p_hidden_w"].to_numpy(), minlength=len(MODES))
+        shares = {m: round(float(s / per.sum()), 4) for m, s in zip(MODES, per, strict=True)}
+    expected = EFFECTS[case.hidden][0] if case.hidden else None
+    km = float(trace["distance_m"].iloc[-1]) / 1000.0
+    net_kwh = (float(trace["e_drive_dc_j"].iloc[-1] + trace["e_aux_j"].iloc[-1]) + hidden_j) / 3.6e6
+    truth = {
+        **asdict(case),
+        "source": SOURCE,
+        "columns": list(log.columns),
+        "expected_verdict": expected,
+        "outside_mode": (max(shares, key=shares.get)
+                         if expected == "outside_library" and shares else None),
+        "mode_shares": shares,
+        "strength": _strength(case.hidden, ph, trace),
+        "physical": ph,
+        "base": {k: (v if isinstance(v, str) else float(v)) for k, v in base.items()},
+        "date": plan.attrs["date"],
+        "charger_kw": plan.attrs["charger_kw"],
+        "charger_terminals": plan.attrs["charger_terminals"],
+        **day,
+        "summary": {"km": round(km, 3),
+                    "kwh_per_km": round(net_kwh / km, 4),
+                    "hidden_kwh": round(hidden_j / 3.6e6, 3),
+                    "effect_kwh": round((_used_j(trace) - _used_j(without)) / 3.6e6, 3),
+                    "charger_kwh": round(float(trace["e_charger_j"].iloc[-1]) / 3.6e6, 3),
+                    "soc_min_pct": round(100.0 * float(trace["soc_frac"].min()), 2),
+                    "soc_max_pct": round(100.0 * float(trace["soc_frac"].max()), 2)},
+    }
+    return log, truth
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def log_bytes(log: pd.DataFrame) -> bytes:
+    """The log as gzip-compressed CSV bytes, with no time or name in the gzip header."""
+    buf = io.BytesIO()
+    with gzip.GzipFile(filename="", mode="wb", fileobj=buf, mtime=0) as gz:
+        gz.write(log.to_csv(index=False, lineterminator="\n").encode())
+    return buf.getvalue()
+
+
+def write(case_list: list[Case], out_dir: str | Path) -> list[dict]:
+    """Write each case's ``<case_id>.csv.gz`` and all truth records in ``truth.json``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for case in case_list:
+        log, truth = generate(case)
+        _atomic_write(out / f"{case.case_id}.csv.gz", log_bytes(log))
+        records.append(truth)
+    _atomic_write(out / "truth.json",
+                  (json.dumps(records, indent=1, sort_keys=True) + "\n").encode())
+    return records
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="folder for the logs and truth.json")
+    parser.add_argument("--n-per-effect", type=int, default=10)
+    parser.add_argument("--n-control", type=int, default=30)
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
+    parser.add_argument("--effects", default=None,
+                        help=f"comma-separated subset of {','.join(EFFECTS)}")
+    args = parser.parse_args(argv)
+    effects = tuple(args.effects.split(",")) if args.effects else None
+    if effects and set(effects) - set(EFFECTS):
+        parser.error(f"unknown effects {sorted(set(effects) - set(EFFECTS))}; "
+                     f"known: {', '.join(EFFECTS)}")
+    records = write(cases(args.n_per_effect, args.n_control, args.seed, effects), args.out)
+    for r in records:
+        s = r["summary"]
+        print(f"{r['case_id']:<20} {r['chemistry']} {r['route']:<5} {s['km']:7.1f} km "
+              f"{s['kwh_per_km']:.3f} kWh/km  effect {s['effect_kwh']:6.2f} kWh  "
+              f"SoC {s['soc_min_pct']:.1f}-{s['soc_max_pct']:.1f} %")
+
+
+if __name__ == "__main__":
+    main()

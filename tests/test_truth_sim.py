@@ -1,0 +1,231 @@
+"""The out-of-family truth simulator (benchmarks/truth): physics, degradation, reproducibility."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmarks.truth import cases as truth_cases
+from benchmarks.truth.days import PLAN_COLUMNS, route_day
+from benchmarks.truth.degrade import SOC_STEP_PCT, degrade
+from benchmarks.truth.sim import OCV_TABLES, ocv_cell_v, simulate
+from benchmarks.truth.vehicles import AIR_DENSITY_KG_PER_M3, GRAVITY_MPS2, nominal
+
+TRUTH_DIR = Path(__file__).resolve().parents[1] / "benchmarks" / "truth"
+
+
+def flat_plan(seconds: int, speed_mps: float = 0.0, *, charging: bool = False,
+              charger_kw: float = 0.0, ramp_s: float = 0.0) -> pd.DataFrame:
+    """A hand-made plan: flat, mild, empty; speed ramps from 0 over ``ramp_s``."""
+    t = np.arange(seconds, dtype=float)
+    speed = speed_mps * np.clip(t / ramp_s, 0.0, 1.0) if ramp_s else np.full(seconds, speed_mps)
+    plan = pd.DataFrame({
+        "time_s": t, "clock_h": 10.0 + t / 3600.0, "speed_target_mps": speed,
+        "grade_frac": 0.0, "altitude_m": 50.0, "door_open": 0, "charging": int(charging),
+        "charger_kw": charger_kw if charging else 0.0, "ambient_degc": 15.0, "passengers": 0,
+        "solar_w_per_m2": 0.0, "distance_m": np.cumsum(speed), "leg": 0})
+    plan.attrs["date"] = "2025-05-01"
+    return plan
+
+
+def test_nothing_under_benchmarks_truth_imports_ebus_env():
+    files = sorted(TRUTH_DIR.glob("*.py"))
+    assert len(files) >= 6
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            assert not any(n.split(".")[0] == "ebus_env" for n in names), path.name
+    # nor at run time, through another module
+    code = ("import sys, benchmarks.truth.cases, benchmarks.truth.sim; "
+            "print('ebus_env' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=TRUTH_DIR.parents[1], check=True)
+    assert done.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("chemistry", sorted(OCV_TABLES))
+def test_ocv_tables_increase_with_soc(chemistry):
+    soc, volts = (np.array(a) for a in OCV_TABLES[chemistry])
+    assert soc[0] == 0.0 and soc[-1] == 1.0
+    assert np.all(np.diff(soc) > 0) and np.all(np.diff(volts) > 0)
+    assert ocv_cell_v(chemistry, 0.5) == pytest.approx(np.interp(0.5, soc, volts))
+
+
+def test_flat_constant_speed_draws_the_road_load_power():
+    base = nominal("LFP")
+    speed = 10.0
+    trace = simulate(flat_plan(400, speed, ramp_s=60.0), base)
+    steady = trace[trace["time_s"] > 200.0]
+    assert np.allclose(steady["speed_mps"], speed, atol=1e-3)
+    a_coef = base["c_rr0"] * base["curb_mass_kg"] * GRAVITY_MPS2
+    road_n = (a_coef * (1.0 + base["c_rr_speed_per_mps"] * speed)
+              + 0.5 * AIR_DENSITY_KG_PER_M3 * base["cda_m2"] * speed**2)
+    assert steady["p_wheel_w"].to_numpy() == pytest.approx(road_n * speed, rel=1e-3)
+    expected_batt_w = road_n * speed / base["drive_efficiency"] + base["aux_base_w"]
+    assert steady["p_battery_w"].to_numpy() == pytest.approx(expected_batt_w, rel=1e-3)
+
+
+def test_standing_with_auxiliaries_drains_soc_at_the_aux_rate():
+    base = nominal("NMC")
+    trace = simulate(flat_plan(3601), base, soc0_frac=0.7)
+    drop = 0.7 - trace["soc_frac"].iloc[-1]
+    # charge drawn = E / V_t; V_t hardly moves over 1 % of SoC
+    mean_v = trace["battery_voltage_v"].mean()
+    expected = base["aux_base_w"] * 3600.0 / mean_v / (3600.0 * base["capacity_ah"])
+    assert drop == pytest.approx(expected, rel=2e-3)
+    assert (trace["speed_mps"] == 0.0).all()
+
+
+def test_charging_raises_soc_at_the_chargers_power():
+    base = nominal("LFP")
+    trace = simulate(flat_plan(600, charging=True, charger_kw=300.0), base, soc0_frac=0.5)
+    soc = trace["soc_frac"].to_numpy()
+    assert np.all(np.diff(soc[1:]) > 0)
+    # below the CC/CV limits the charger gives its rated power; the aux load eats part
+    charge_w = -(trace["p_battery_w"].iloc[10:])
+    assert charge_w.to_numpy() == pytest.approx(300e3 - base["aux_base_w"], rel=1e-6)
+
+
+def test_charging_stops_at_the_stop_soc():
+    trace = simulate(flat_plan(1200, charging=True, charger_kw=450.0), nominal("LFP"),
+                     soc0_frac=0.85, charge_stop_frac=0.9)
+    assert 0.9 <= trace["soc_frac"].max() < 0.902
+    assert trace["soc_frac"].iloc[-1] < trace["soc_frac"].max()  # then the aux load drains
+    # the session, and with it the logged charging flag, ends; the bus stays plugged
+    after = trace["soc_frac"].to_numpy().argmax() + 1
+    assert (trace["plugged"] == 1).all()
+    assert (trace["charging"].iloc[:after] == 1).all() and (trace["charging"].iloc[after:] == 0).all()
+    assert (trace["charger_kw"].iloc[after:] == 0.0).all()
+
+
+@pytest.fixture(scope="module")
+def hilly_day():
+    plan = route_day(np.random.default_rng(5), 1.5, 7.0, "rt45")
+    base = nominal("NMC")
+    return plan, base, simulate(plan, base, "road_grade")
+
+
+def test_energy_balance_closes(hilly_day):
+    _, base, tr = hilly_day
+    end = tr.iloc[-1]
+    wheel = end["e_road_j"] + end["e_grade_j"] + end["e_friction_j"] + end["e_kinetic_j"]
+    assert end["e_wheel_j"] == pytest.approx(wheel, rel=1e-9, abs=1.0)
+    assert end["e_battery_j"] == pytest.approx(end["e_ocv_j"] - end["e_battery_loss_j"],
+                                               rel=1e-9)
+    dc = end["e_drive_dc_j"] + end["e_aux_j"] + end["e_hidden_j"] - end["e_charger_j"]
+    assert end["e_battery_j"] == pytest.approx(dc, rel=1e-9)
+    # the grade's work is m g times the climb
+    climb = tr["altitude_m"].iloc[-1] - tr["altitude_m"].iloc[0]
+    assert end["e_grade_j"] == pytest.approx(base["curb_mass_kg"] * GRAVITY_MPS2 * climb,
+                                             rel=1e-6, abs=1e3)
+    assert end["e_friction_j"] > 0.0 and end["e_road_j"] > 0.0
+
+
+def test_driver_follows_the_plan(hilly_day):
+    plan, _, tr = hilly_day
+    target = np.interp(tr["time_s"], plan["time_s"], plan["speed_target_mps"])
+    assert np.sqrt(np.mean((tr["speed_mps"] - target) ** 2)) < 0.6
+    assert tr["distance_m"].iloc[-1] == pytest.approx(plan["distance_m"].iloc[-1], rel=0.02)
+
+
+def test_route_day_is_a_one_hertz_service_day():
+    plan = route_day(np.random.default_rng(11), 3.0, 6.5, "rt44", climate="cold")
+    assert list(plan.columns) == list(PLAN_COLUMNS)
+    assert len(plan) == 3 * 3600 and np.all(np.diff(plan["time_s"]) == 1.0)
+    moving = plan["speed_target_mps"] > 0.0
+    assert not (moving & (plan["door_open"] == 1)).any()
+    assert not (moving & (plan["charging"] == 1)).any()
+    assert plan["charging"].sum() > 0 and plan["door_open"].sum() > 0
+    assert plan["grade_frac"].abs().max() <= 0.10
+    assert plan["passengers"].between(0, 85).all()
+    assert plan["ambient_degc"].mean() < 8.0  # a winter day
+    accel = np.diff(plan["speed_target_mps"])
+    assert accel.max() < 1.4 and accel.min() > -1.5
+    km_per_h = plan["distance_m"].iloc[-1] / 1000.0 / 3.0
+    assert 8.0 < km_per_h < 25.0  # city-bus commercial speed, layovers included
+
+
+def test_degraded_log_is_one_hertz_and_quantised(hilly_day):
+    _, _, tr = hilly_day
+    clean = tr[["time_s", "clock_h", "speed_mps", "soc_frac", "ambient_degc", "altitude_m",
+                "charging", "charger_kw", "door_open"]].copy()
+    clean.attrs["date"] = "2025-05-01"
+    log = degrade(clean, np.random.default_rng(3))
+    stamps = pd.to_datetime(log["timestamp"])
+    assert (stamps.diff().dropna() == pd.Timedelta(seconds=1)).all()
+    assert stamps.iloc[0] == pd.Timestamp("2025-05-01 07:00:00")
+    steps = log["soc_pct"] / SOC_STEP_PCT
+    assert np.allclose(steps, np.round(steps), atol=1e-9)
+    assert np.abs(log["soc_pct"] - 100.0 * tr["soc_frac"]).max() < 3.0
+    assert (log["speed_kmh"][tr["speed_mps"] == 0.0] == 0.0).all()
+    moving = tr["speed_mps"] > 1.0
+    rel_err = log["speed_kmh"][moving] / (3.6 * tr["speed_mps"][moving]) - 1.0
+    assert 0.0 < rel_err.abs().mean() < 0.1
+    alt_err = log["altitude_m"] - tr["altitude_m"]
+    assert 0.5 < alt_err.std() < 10.0
+    assert "passengers" not in log and "battery_current_a" not in log
+    rel = degrade(clean, np.random.default_rng(3), relative_time=True)
+    assert "timestamp" not in rel and rel["time_s"].iloc[0] == 0.0
+    assert np.all(np.diff(rel["time_s"]) == 1.0)
+
+
+def test_a_short_case_is_byte_reproducible():
+    case = dataclasses.replace(truth_cases.cases(1, 0, effects=("passenger_mass",))[0],
+                               hours=0.4)
+    log_a, truth_a = truth_cases.generate(case)
+    log_b, truth_b = truth_cases.generate(case)
+    assert truth_cases.log_bytes(log_a) == truth_cases.log_bytes(log_b)
+    assert truth_a == truth_b
+    back = pd.read_csv(io.BytesIO(truth_cases.log_bytes(log_a)), compression="gzip")
+    assert list(back.columns) == list(log_a.columns) and "passengers" in back
+    assert truth_a["expected_verdict"] == "passenger_mass"
+    kg = truth_a["strength"]["passenger_mass.passenger_mass_kg"]
+    assert kg == truth_a["physical"]["passenger_mass_kg"] and 65.0 <= kg <= 85.0
+
+
+def test_case_list_covers_every_effect_and_keeps_clock_bound_logs_stamped():
+    listed = truth_cases.cases()
+    by_effect = pd.Series([c.hidden or "control" for c in listed]).value_counts()
+    assert (by_effect.drop("control") == 10).all() and by_effect["control"] == 30
+    assert set(by_effect.index) - {"control"} == set(truth_cases.EFFECTS)
+    assert len({c.seed for c in listed}) == len(listed)
+    assert not any(c.relative_time for c in listed if c.hidden in truth_cases.CLOCK_BOUND)
+    assert any(c.relative_time for c in listed)
+    assert {c.chemistry for c in listed} == {"LFP", "NMC"}
+
+
+@pytest.mark.parametrize("hidden", sorted(truth_cases.EFFECTS))
+def test_each_hidden_effect_costs_energy_where_it_should(hidden):
+    case = truth_cases.cases(1, 0, effects=(hidden,))[0]
+    start = 16.0 if hidden == "aux_schedule" else case.start_clock_h  # into the dusk
+    case = dataclasses.replace(case, hours=2.0, start_clock_h=start)
+    log, truth = truth_cases.generate(case)
+    assert truth["summary"]["effect_kwh"] > 0.2
+    assert truth["expected_verdict"] == truth_cases.EFFECTS[hidden][0]
+    assert ("altitude_m" in log) == (hidden == "road_grade")
+    assert ("passengers" in log) == (hidden == "passenger_mass")
+    if truth["expected_verdict"] == "outside_library":
+        assert truth["strength"] == {}
+        assert truth["outside_mode"] in truth_cases.MODES
+        assert sum(truth["mode_shares"].values()) == pytest.approx(1.0, abs=1e-3)
+    else:
+        assert truth["outside_mode"] is None
+    if hidden == "battery_chiller":
+        charging = truth["mode_shares"]["CC charging"] + truth["mode_shares"]["CV charging"]
+        assert charging == pytest.approx(1.0)
+    if hidden == "regen_soc_limit":
+        assert truth["summary"]["soc_max_pct"] > truth["strength"][
+            "regen_soc_limit.derate_soc_pct"]
