@@ -187,11 +187,13 @@ def truth_module(source: str):
 
 
 def truth_cases(source: str, smoke: bool) -> list:
-    """The cases of a source: the whole bench, or 1 day per effect and 3 controls (4 h)."""
+    """The cases of a source: the whole bench, or 1 day per effect and 3 controls, each the
+    last ``SMOKE_HOURS`` of its day (so that an evening load stays in it)."""
     module, _ = truth_module(source)
     if not smoke:
         return module.cases()
-    return [replace(c, hours=min(c.hours, SMOKE_HOURS)) for c in module.cases(1, 3)]
+    return [replace(c, start_clock_h=round(c.start_clock_h + max(c.hours - SMOKE_HOURS, 0), 3),
+                    hours=min(c.hours, SMOKE_HOURS)) for c in module.cases(1, 3)]
 
 
 def truth_day(source: str, case, folder: Path):
