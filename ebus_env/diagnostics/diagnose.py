@@ -288,14 +288,14 @@ class Attributed:
 
 
 def mode_clue(modes: list[dict]) -> str | None:
-    """The operating mode where the most power is missing, when it stands out of its
-    standard error by ``CLUE_SIGMA``: where an effect the library lacks draws its power."""
+    """The operating mode where the most energy is missing, among those whose missing power
+    stands out of its standard error by ``CLUE_SIGMA``: where an effect the library lacks
+    draws its energy."""
     shown = [m for m in modes if np.isfinite(m["missing_kw"]) and np.isfinite(m["stderr_kw"])
              and m["missing_kw"] > CLUE_SIGMA * m["stderr_kw"]]
     if not shown:
         return None
-    top = max(shown, key=lambda m: m["missing_kw"] / max(m["stderr_kw"], 1e-9))
-    return top["mode"]
+    return max(shown, key=lambda m: m["missing_kwh"])["mode"]
 
 
 def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], blocks,
