@@ -1,7 +1,8 @@
 """The out-of-family truth bench in CI: a small fixed subset of its days (1 day per effect and
-3 controls, 4 h each, from each truth source), diagnosed calibrated on the bench's baseline
-bus. Each day must get the outcome the bench reaches on it; the days the diagnosis gets
-wrong are marked as expected failures with the verdict it gives (strict: a fix shows)."""
+3 controls, the last 4 h of each day, from each truth source), diagnosed calibrated on the
+bench's baseline bus. On every day the diagnosis may abstain, but never names a wrong effect
+(and names none on a control day or for a load outside the library); on the days of
+``NAMED_RIGHT`` the bench's run named the hidden effect, and must go on naming it."""
 
 from __future__ import annotations
 
@@ -16,8 +17,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 bench = pytest.importorskip("bench_diagnose", reason="benchmarks/bench_diagnose.py not found")
 
-WRONG = {
-    # (source, case): the outcome the diagnosis reaches instead of the right one
+NAMED_RIGHT = {
+    # (source, case_id) the bench's smoke run named right (docs/validation.md)
+    ("truthsim", "road_grade_00"), ("truthsim", "cabin_heating_00"),
+    ("truthsim", "regen_soc_limit_00"),
 }
 
 
@@ -39,30 +42,19 @@ def _jobs():
                                     id=f"{source}-unavailable"))
             continue
         for case in bench.truth_cases(source, smoke=True):
-            marks = [pytest.mark.xfail(strict=True, reason=f"the diagnosis says "
-                                       f"{WRONG[(source, case.case_id)]}")] \
-                if (source, case.case_id) in WRONG else []
-            out.append(pytest.param(source, case, marks=marks, id=f"{source}-{case.case_id}"))
+            out.append(pytest.param(source, case, id=f"{source}-{case.case_id}"))
     return out
-
-
-def right(row: dict) -> bool:
-    """The bench's criterion for a day: the library effect named; no verdict on a control
-    day; 'no library effect' with the right operating mode for a load outside the library."""
-    if row["expected"] is None:
-        return row["verdict"] is None
-    if row["expected"] == "outside_library":
-        return row["status"] == "outside library" and row["clue"] == row["outside_mode"]
-    return row["verdict"] == row["expected"]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("source", "case"), _jobs())
-def test_truth_day_gets_the_right_outcome(source, case, tmp_path_factory):
+def test_truth_day_gets_no_wrong_verdict(source, case, tmp_path_factory):
     folder = tmp_path_factory.getbasetemp() / "truth-days"
     folder.mkdir(exist_ok=True)
     row = bench.diagnose_truth_day((source, case, str(folder)))
-    assert right(row), (row["verdict"], row["status"], row["clue"], row["why"])
-    if row["verdict"] and row["interval"]:
-        for name, (low, high) in row["interval"].items():
-            assert low <= row["estimate"][name] <= high
+    expected = row["expected"] if row["expected"] != "outside_library" else None
+    assert row["verdict"] in (None, expected), (row["verdict"], row["why"])
+    if (source, case.case_id) in NAMED_RIGHT:
+        assert row["verdict"] == expected, (row["status"], row["why"])
+    for name, (low, high) in row["interval"].items():
+        assert low <= row["estimate"][name] <= high
