@@ -270,3 +270,21 @@ def test_a_fit_far_above_the_noise_floor_claims_nothing(tmp_path, bus12, model):
     assert result.fit["nrmse"] > 5 * 0.002
     assert result.determinacy["static_rcd.rcd_frac"].status != "well determined"
     assert any("noise floor" in w for w in result.warnings)
+
+
+def test_calibration_never_ends_worse_than_its_start():
+    """The 12 m defaults already fit the project's nothing-hidden day: a search too short to
+    beat them must return them (and say so), and a full one must end no worse."""
+    model = load_bus("12m").build()
+    profiles = load_log(ROOT / "data/measured/hidden/control.csv.gz", model.dt_s).profiles
+    start = calibrate(model, profiles, settings=ISOPTSettings(seed=0, population=2,
+                                                              iterations=0),
+                      polish_starts=0)
+    before = start.fit["nrmse"]
+    assert "starting values kept" in start.method
+    assert any("starting values" in n for n in start.notes)
+    assert all(start.values[p] == pytest.approx(model.params[model.param_index(p)])
+               for p in start.free)
+    searched = calibrate(model, profiles, settings=ISOPTSettings(seed=0, iterations=5),
+                         polish_starts=1)
+    assert searched.fit["nrmse"] <= before * (1 + 1e-9)

@@ -313,6 +313,10 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks,
                                  blocks=blocks)
     windows: list[dict] = []
+    # the starting values (the model's own, clipped to the box) are a candidate like any
+    # other: the search starts from them and the result never ends worse than they do
+    start_u = problem.points([{}])[0]
+    start_cost = float(problem.cost(start_u[None])[0])
     if windowed:
         from ebus_env.calibration.windowed import tune_windowed
 
@@ -320,7 +324,7 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
             problem, settings, window_settings, progress)
         method = "iSOPT, windowed"
     else:
-        seeds = problem.points(start) if start else None
+        seeds = problem.points([{}, *start])
         run = isopt(problem.cost, len(problem.free), settings, callback=progress,
                     population=seeds)
         best_u, best_cost, history = run.x, run.cost, run.history
@@ -331,17 +335,29 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     if polish_starts is None:
         polish_starts = 0 if windowed else 4
     det = {}
+    kept_start = False
     evaluations_before_polish = problem.evaluations
+    if windowed:
+        best_cost = float(problem.cost(best_u[None])[0])  # the windows scored part of the data
     if not interrupted:
         x_all, c_all = history.all_evaluated()
         starts = distinct_starts(np.vstack([best_u, x_all]), np.concatenate([[best_cost], c_all]),
                                  k=max(1, polish_starts))
-        points, _, jacobians = polish(problem, starts, iterations=12 if polish_starts else 0)
+        # the starting values are polished too: a local step from them may be all it takes
+        points, _, jacobians = polish(problem, np.vstack([starts, start_u]),
+                                      iterations=12 if polish_starts else 0)
         costs = problem.cost(points)  # with penalties
         i = int(np.argmin(costs))
         if costs[i] < best_cost:
             best_u, best_cost = points[i], float(costs[i])
             method += " + least-squares polish"
+        if start_cost <= best_cost:
+            kept_start = True
+            points = np.vstack([points, start_u])
+            costs = np.append(costs, start_cost)
+            jacobians = np.concatenate([jacobians, polish(problem, start_u[None], 0)[2]])
+            i, best_u, best_cost = len(points) - 1, start_u, start_cost
+            method += ", starting values kept"
         evaluations = search_evaluations + problem.evaluations - evaluations_before_polish
         timings["polish_s"] = time.perf_counter() - t0 - timings["search_s"]
         near = (costs <= best_cost * (1 + NEAR_REL) + NEAR_ABS) & (np.arange(len(costs)) != i)
@@ -355,6 +371,8 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
                 f"the best fit (NRMSE {best_cost:.4f}) is {best_cost / max(floor, 1e-12):.0f} "
                 f"times the log's noise floor ({floor:.4f}): a better fit may exist, or the "
                 "model lacks an effect, so no parameter is reported as well determined")
+    elif start_cost < best_cost:
+        kept_start, best_u, best_cost = True, start_u, start_cost
     tuning_s = time.perf_counter() - t0
     timings["determinacy_s"] = tuning_s - sum(timings.values())
     tuning_s -= timings["determinacy_s"]  # the report's extra runs are not tuning
@@ -368,6 +386,9 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     notes = list(problem.notes)
     if interrupted:
         notes.append("interrupted: this is the best point found before the interruption")
+    if kept_start:
+        notes.append(f"no candidate fitted better than the starting values (NRMSE "
+                     f"{start_cost:.4f}): they are kept")
     return CalibrationResult(
         model_name=model.name, free=problem.free, values=problem.named(best_u),
         bounds={p: (float(lo), float(hi)) for p, lo, hi in zip(problem.free, problem.low,

@@ -8,11 +8,14 @@ effect is missing, add it and watch the error fall.
 3. :mod:`~ebus_env.diagnostics.candidates`: what each registered effect the model lacks, and
    each parameter of the effects it has, would add along the trip (its signature).
 4. :mod:`~ebus_env.diagnostics.attribution`: which signature explains the missing power on
-   held-out windows (robust, cross-validated, sparse), and the verdict.
+   held-out windows (robust, cross-validated, sparse), and the verdict, decided by a block
+   bootstrap over the windows; the strength with its interval
+   (:func:`~ebus_env.diagnostics.candidates.estimate_strength`).
 5. :mod:`~ebus_env.diagnostics.clues`: what the missing power moves with, for effects the
    library lacks.
-6. :mod:`~ebus_env.diagnostics.ladder`: NRMSE before and after each added effect, re-calibrated,
-   on calibration and held-out blocks.
+6. :mod:`~ebus_env.diagnostics.ladder`: NRMSE before and after each added effect, re-calibrated
+   (the paper's parameters, the bus-to-bus ones and the effect's strength free together), on
+   calibration and held-out blocks.
 
 :func:`diagnose` runs them all; :mod:`~ebus_env.diagnostics.report` writes the console, JSON
 and HTML report; :mod:`~ebus_env.diagnostics.hidden` makes service days with a hidden effect.

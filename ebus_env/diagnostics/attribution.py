@@ -15,8 +15,13 @@ held-out share. The verdict is the best missing effect only when
 
 * the missing power stands out of the noise: chi-square of the windows' missing power in
   noise units lies ``MIN_SIGNIFICANCE`` standard deviations above its value for noise alone;
-* the effect explains at least ``MIN_EXPLAINED`` of it, ``MIN_MARGIN`` more than the
-  runner-up;
+* the effect explains at least ``MIN_EXPLAINED`` of it, and ``MIN_GAIN`` more than
+  re-adjusting the calibrated (nuisance) parameters alone;
+* it beats the nuisance parameters alone in ``CONFIDENCE`` of the draws of a moving-block
+  bootstrap over the windows' held-out losses (Kuensch 1989, Ann. Statist. 17(3) 1217-1241);
+* it beats the runner-up by ``MIN_MARGIN`` of the share, or in ``CONFIDENCE`` of the
+  bootstrap draws (a clear winner by a few points): else the data cannot tell the two apart,
+  and both are reported, neither named;
 * it still adds ``MIN_GAIN`` when a parameter of the model explains as much on its own (else
   a mis-set parameter, not a missing effect, is the simpler explanation).
 
@@ -26,14 +31,23 @@ Otherwise no missing effect is supported by the data.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import least_squares, lsq_linear
 
 MIN_EXPLAINED = 0.3
-MIN_MARGIN = 0.05
 MIN_SIGNIFICANCE = 3.0
+MIN_MARGIN = 0.05
 MIN_GAIN = 0.05
 TIE = 0.01  # held-out shares this close are equal
+BOOT_BLOCK = 6  # windows per bootstrap block (30 min of 5-min windows)
+BOOT_DRAWS = 400
+CONFIDENCE = 0.95  # a winner beats the runner-up in this share of the bootstrap draws
+NUISANCE_STEPS = 1.0
+"""How far a calibrated (nuisance) parameter may move back when an effect is added, in its
+signature's steps (10 % of its range): unbounded, a dozen collinear signatures over-fit the
+training windows and predict the held-out ones worse than nothing."""
 HUBER_C = 3.0  # noise units: a window this far off is an outlier (a driver's action, a glitch)
 
 
@@ -44,6 +58,9 @@ class Attribution:
     explained: float  # held-out share of the missing power
     scale: float  # beta: the candidate's strength relative to its signature
     estimate: dict = field(default_factory=dict)  # parameter -> value, for the verdict
+    lost: np.ndarray = field(default=None, repr=False)  # held-out loss per window
+    total: np.ndarray = field(default=None, repr=False)  # loss of predicting nothing
+    band: tuple[float, float] = (float("nan"), float("nan"))  # bootstrap 5-95 % of explained
 
 
 def weights(noise: np.ndarray) -> np.ndarray:
@@ -63,36 +80,30 @@ def huber(r: np.ndarray) -> np.ndarray:
     return np.where(a <= HUBER_C, 0.5 * r * r, HUBER_C * (a - 0.5 * HUBER_C))
 
 
-def _least_squares(a: np.ndarray, b: np.ndarray, nonneg: np.ndarray) -> np.ndarray:
-    """min |a beta - b| with beta >= 0 where asked: a column whose coefficient comes out
-    negative is held at 0 (the most negative first) and the rest re-solved. Exact for one
-    constrained column, the case of every attribution fit but stepwise ones."""
-    free = np.ones(a.shape[1], bool)
-    while True:
-        beta = np.zeros(a.shape[1])
-        beta[free] = np.linalg.lstsq(a[:, free], b, rcond=None)[0]
-        bad = np.where(nonneg & free & (beta < 0), beta, 0.0)
-        if not bad.any():
-            return beta
-        free[np.argmin(bad)] = False
+def _bounds(nonneg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return np.where(nonneg, 0.0, -np.inf), np.full(len(nonneg), np.inf)
 
 
 def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray,
-         iterations: int = 50) -> np.ndarray:
-    """Weighted robust (Huber) least squares, coefficients >= 0 where asked: iteratively
-    re-weighted least squares (Huber's weights min(1, c/|r|)), which converges to the
-    minimum of the convex Huber loss."""
+         bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Weighted robust least squares, coefficients >= 0 where asked (or within ``bounds``)::
+
+        min_beta  sum_w huber(sqrt(w) (y - x beta))
+
+    ``scipy.optimize.least_squares(loss="huber", f_scale=HUBER_C)`` minimises exactly this sum
+    (its rho is Huber's loss scaled by f_scale^2), from the bounded linear least-squares
+    solution (``lsq_linear``)."""
     sw = np.sqrt(w)
     a, b = x * sw[:, None], y * sw
-    beta = _least_squares(a, b, nonneg)
-    for _ in range(iterations):
-        r = np.abs(a @ beta - b)
-        u = np.sqrt(np.minimum(1.0, HUBER_C / np.maximum(r, 1e-300)))
-        new = _least_squares(a * u[:, None], b * u, nonneg)
-        if np.max(np.abs(new - beta)) <= 1e-7 * (np.max(np.abs(beta)) + 1e-12):
-            return new
-        beta = new
-    return beta
+    low, high = bounds or _bounds(nonneg)
+    start = lsq_linear(a, b, bounds=(low, high)).x
+    if not np.any(np.abs(a @ start - b) > HUBER_C):
+        return start  # no window in the linear part of the loss: least squares is the answer
+    fit = least_squares(lambda beta: a @ beta - b, start, jac=lambda beta: a,
+                        bounds=(low, high), loss="huber", f_scale=HUBER_C,
+                        x_scale=1.0 / np.maximum(np.linalg.norm(a, axis=0), 1e-300),
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    return fit.x
 
 
 def held_out_explained(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray,
@@ -111,40 +122,66 @@ def held_out_explained(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.n
     return 1.0 - lost / total if total > 0 else 0.0
 
 
-def _loss(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray) -> tuple[
-        float, np.ndarray]:
-    """Huber loss of the best fit of y by the columns of x, and the coefficients."""
-    beta = _fit(x, y, w, nonneg)
+def _loss(x: np.ndarray, y: np.ndarray, w: np.ndarray, bounds) -> tuple[float, np.ndarray]:
+    """Huber loss of the best fit of y by the columns of x (coefficients within ``bounds``),
+    and the coefficients."""
+    beta = _fit(x, y, w, np.zeros(x.shape[1], bool), bounds)
     return float(np.sum(huber(np.sqrt(w) * (y - x @ beta)))), beta
 
 
 def held_out_best(variants: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: bool,
-                  folds: int, nuisance: np.ndarray | None = None) -> tuple[float, int, float]:
+                  folds: int, nuisance: np.ndarray | None = None) -> tuple[
+        float, int, float, np.ndarray, np.ndarray]:
     """Held-out share of y explained by one of several signatures (rows of ``variants``: an
     effect at several strengths) together with the ``nuisance`` columns (parameters free to
     re-adjust), the variant that fits the training folds best chosen in each fold. Returns
-    the share, the variant that fits all windows best and its coefficient."""
+    the share, the variant that fits all windows best, its coefficient, and per window the
+    held-out loss and the loss of predicting nothing (for the bootstrap)."""
     extra = np.zeros((len(y), 0)) if nuisance is None else nuisance
-    signs = np.array([nonneg] + [False] * extra.shape[1])
+    signs = np.zeros(1 + extra.shape[1])
+    bounds = (np.concatenate([[0.0 if nonneg else -np.inf], np.full(extra.shape[1],
+                                                                   -NUISANCE_STEPS)]),
+              np.concatenate([[np.inf], np.full(extra.shape[1], NUISANCE_STEPS)]))
     sw = np.sqrt(w)
 
     def fits(rows):
-        return [_loss(np.column_stack([v[rows], extra[rows]]), y[rows], w[rows], signs)
+        return [_loss(np.column_stack([v[rows], extra[rows]]), y[rows], w[rows], bounds)
                 for v in variants]
 
-    lost = total = 0.0
+    lost = np.zeros(len(y))
+    total = huber(sw * y)
     for test in folds_of(len(y), folds):
         train = np.setdiff1d(np.arange(len(y)), test)
         if len(train) < len(signs) + 1:
+            lost[test] = total[test]
             continue
         trained = fits(train)
         k = int(np.argmin([f[0] for f in trained]))
         pred = np.column_stack([variants[k][test], extra[test]]) @ trained[k][1]
-        lost += float(np.sum(huber(sw[test] * (y[test] - pred))))
-        total += float(np.sum(huber(sw[test] * y[test])))
+        lost[test] = huber(sw[test] * (y[test] - pred))
     everything = fits(np.arange(len(y)))
     chosen = int(np.argmin([f[0] for f in everything]))
-    return (1.0 - lost / total if total > 0 else 0.0), chosen, float(everything[chosen][1][0])
+    share = 1.0 - lost.sum() / total.sum() if total.sum() > 0 else 0.0
+    return share, chosen, float(everything[chosen][1][0]), lost, total
+
+
+def block_draws(n: int, block: int = BOOT_BLOCK, draws: int = BOOT_DRAWS,
+                seed: int = 0) -> np.ndarray:
+    """Moving-block bootstrap over ``n`` consecutive windows: (draws, n) counts of how often
+    each window is drawn, blocks of ``block`` windows starting anywhere (Kuensch 1989), so
+    that the power missing in neighbouring windows, which is correlated, is drawn together."""
+    rng = np.random.default_rng(seed)
+    block = max(1, min(block, n))
+    starts = rng.integers(0, n - block + 1, (draws, -(-n // block)))
+    rows = (starts[:, :, None] + np.arange(block)).reshape(draws, -1)[:, :n]
+    counts = np.zeros((draws, n))
+    np.add.at(counts, (np.repeat(np.arange(draws), rows.shape[1]), rows.ravel()), 1.0)
+    return counts
+
+
+def shares(counts: np.ndarray, lost: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """Held-out explained share in each bootstrap draw."""
+    return 1.0 - (counts @ lost) / np.maximum(counts @ total, 1e-300)
 
 
 def _score(by_name, names: list[str], y, w, usable, folds) -> float:
@@ -160,16 +197,28 @@ def _gain(by_name, base: list[str], extra: str, y, w, usable, folds) -> float:
                                                                          usable, folds)
 
 
+class Decision(NamedTuple):
+    """What :func:`attribute` concludes."""
+
+    ranking: list[Attribution]  # single candidates, best first
+    selected: list[str]  # the sparse set of forward selection
+    verdict: str | None
+    why: str  # why there is no verdict
+    significance: float  # of the missing power above noise, in standard deviations
+    status: str  # "named", "noise", "outside library", "tie" or "parameter"
+
+
 def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np.ndarray,
-              folds: int = 5, nuisance: tuple[str, ...] = ()):
+              folds: int = 5, nuisance: tuple[str, ...] = ()) -> Decision:
     """Score every candidate alone, select a sparse set, and decide the verdict.
 
     ``nuisance`` names parameter candidates fitted along with every effect: after a
     calibration, the calibrated parameters have absorbed part of a missing effect, and adding
-    the effect lets them move back.
-
-    Returns (ranking of single candidates best first, selected names, verdict name or None,
-    why, significance of the missing power in standard deviations)."""
+    the effect lets them move back. The held-out losses per window are resampled by a
+    moving-block bootstrap (:func:`block_draws`): the best effect is named only when it beats
+    re-adjusting the nuisance parameters alone in ``CONFIDENCE`` of the draws, and the
+    runner-up by ``MIN_MARGIN`` or in ``CONFIDENCE`` of the draws (see the module docstring);
+    a band of 5-95 % of its explained share goes with each effect."""
     y = missing_w[usable]
     w = weights(noise_w[usable])
     significance = _significance(y, noise_w[usable])
@@ -180,10 +229,13 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
     ranking = []
     for c in candidates:
         effect = c.kind != "parameter"
-        explained, c.chosen, scale = held_out_best(c.signatures_w[:, usable], y, w, effect,
-                                                   folds, extra if effect else None)
-        ranking.append(Attribution(c.name, c.kind, explained, scale))
+        explained, c.chosen, scale, lost, total = held_out_best(
+            c.signatures_w[:, usable], y, w, effect, folds, extra if effect else None)
+        ranking.append(Attribution(c.name, c.kind, explained, scale, lost=lost, total=total))
     ranking.sort(key=lambda a: -a.explained)
+    counts = block_draws(len(y))
+    for a in ranking:
+        a.band = tuple(np.quantile(shares(counts, a.lost, a.total), [0.05, 0.95]).tolist())
     selected: list[str] = []
     current = 0.0
     pool = [a.name for a in ranking[:25]]  # the best 25 alone are the only ones worth trying
@@ -200,31 +252,46 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
         pool.remove(best)
     effects = [a for a in ranking if a.kind != "parameter"]
     params = [a for a in ranking if a.kind == "parameter"]
-    verdict, why = None, ""
     if significance < MIN_SIGNIFICANCE:
-        why = (f"the missing power is at the noise level ({significance:.1f} standard deviations "
-               "above it): the model explains these data")
-    elif not effects or effects[0].explained < MIN_EXPLAINED:
-        top = f" (best: {effects[0].name}, {100 * effects[0].explained:.0f} %)" if effects else ""
-        why = ("no registered effect explains the missing power on held-out windows" + top
-               + "; see the clues for what kind of effect to write")
-    elif len(effects) > 1 and effects[0].explained - effects[1].explained < MIN_MARGIN:
-        why = (f"{effects[0].name} and {effects[1].name} explain the missing power about "
-               f"equally ({100 * effects[0].explained:.0f} and "
-               f"{100 * effects[1].explained:.0f} %): the data cannot tell them apart")
-    elif nuisance and effects[0].explained - _score(by_name, list(nuisance), y, w, usable,
-                                                    folds) < MIN_GAIN:
-        why = (f"{effects[0].name} explains hardly more than re-adjusting the calibrated "
-               "parameters does")
-    elif params and params[0].explained >= effects[0].explained - TIE and _gain(
-            by_name, [params[0].name], effects[0].name, y, w, usable, folds) < MIN_GAIN:
-        why = (f"the parameter {params[0].name} explains the missing power as well "
-               f"({100 * params[0].explained:.0f} %, {effects[0].name} "
-               f"{100 * effects[0].explained:.0f} %): a mis-set parameter is the simpler "
-               "explanation; calibrate it (--calibrate) before adding an effect")
+        return Decision(ranking, selected, None, (
+            f"the missing power is at the noise level ({significance:.1f} standard deviations "
+            "above it): the model explains these data"), significance, "noise")
+    outside = ("no library effect explains the missing power on held-out windows{}; the "
+               "clues and the operating modes say what kind of effect to write")
+    if not effects:
+        return Decision(ranking, selected, None, outside.format(""), significance,
+                        "outside library")
+    top = effects[0]
+    top_b = shares(counts, top.lost, top.total)
+    if extra is not None:
+        base = held_out_best(np.zeros((1, len(y))), y, w, True, folds, extra)
+        base_share, base_b = base[0], shares(counts, base[3], base[4])
     else:
-        verdict = effects[0].name
-    return ranking, selected, verdict, why, significance
+        base_share, base_b = 0.0, np.zeros(len(counts))
+    gain_low = float(np.quantile(top_b - base_b, 1.0 - CONFIDENCE))
+    if top.explained < MIN_EXPLAINED or top.explained - base_share < MIN_GAIN or gain_low <= 0:
+        best = (f" (best: {top.name}, {100 * top.explained:.0f} %"
+                + (f", re-adjusting the calibrated parameters alone {100 * base_share:.0f} %"
+                   if extra is not None else "") + ")")
+        return Decision(ranking, selected, None, outside.format(best), significance,
+                        "outside library")
+    if len(effects) > 1:
+        second = effects[1]
+        wins = float(np.mean(top_b > shares(counts, second.lost, second.total)))
+        if wins < CONFIDENCE and top.explained - second.explained < MIN_MARGIN:
+            return Decision(ranking, selected, None, (
+                f"{top.name} and {second.name} explain the missing power about equally "
+                f"({100 * top.explained:.0f} and {100 * second.explained:.0f} %; the first "
+                f"fits better in {100 * wins:.0f} % of bootstrap resamples of the held-out "
+                "windows): the data cannot tell them apart"), significance, "tie")
+    if params and params[0].explained >= top.explained - TIE and _gain(
+            by_name, [params[0].name], top.name, y, w, usable, folds) < MIN_GAIN:
+        return Decision(ranking, selected, None, (
+            f"the parameter {params[0].name} explains the missing power as well "
+            f"({100 * params[0].explained:.0f} %, {top.name} {100 * top.explained:.0f} %): a "
+            "mis-set parameter is the simpler explanation; calibrate it (--calibrate) before "
+            "adding an effect"), significance, "parameter")
+    return Decision(ranking, selected, top.name, "", significance, "named")
 
 
 def _significance(y: np.ndarray, noise: np.ndarray) -> float:

@@ -19,8 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import lsq_linear
 
 from ebus_env.config import BusConfig
+from ebus_env.diagnostics.attribution import NUISANCE_STEPS
 from ebus_env.diagnostics.residual import window_power
 from ebus_env.effects.base import Effect, registered_effects
 from ebus_env.errors import EbusError
@@ -41,6 +43,8 @@ class Candidate:
     bus: BusConfig | None = None
     step: float = 0.0  # parameter candidates: the change of the parameter
     chosen: int = 0  # the signature that fits best (the default until attribution picks)
+    model: object = None  # the bus's built model (effects), shared by the later stages
+    params: np.ndarray | None = None  # its parameter vector with the diagnosed values
 
     @property
     def signature_w(self) -> np.ndarray:
@@ -102,7 +106,8 @@ def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windo
             continue
         if progress:
             progress(eff.name)
-        found = Candidate(eff.name, kind, np.zeros((1, len(windows))), effect=eff, bus=changed)
+        found = Candidate(eff.name, kind, np.zeros((1, len(windows))), effect=eff, bus=changed,
+                          model=model, params=params)
         name = found.strength_param
         grid = None
         if name is not None:
@@ -143,49 +148,103 @@ def parameter_candidates(model, params: np.ndarray, profiles, windows, basis, en
     return out
 
 
-def estimate_strength(candidate: Candidate, dt_s: float, values: dict, profiles, windows,
-                      basis, energy_j, base_power: np.ndarray, missing_w: np.ndarray,
-                      weight: np.ndarray, fit: np.ndarray,
-                      nuisance: np.ndarray | None = None) -> tuple[dict, np.ndarray]:
+@dataclass
+class Strength:
+    """The verdict's strength: value, 5-95 % bootstrap interval, and whether the fit wants a
+    value beyond a bound of its parameter (then the shape fits but the strength is
+    implausible)."""
+
+    value: dict  # {qualified name: value}, {} for an effect without a strength parameter
+    interval: dict  # {qualified name: (low, high)}
+    at_bound: bool = False  # the data want a strength beyond a bound
+
+
+AT_BOUND = 0.02  # of the range
+
+
+def _vertex(x: np.ndarray, cost: np.ndarray) -> np.ndarray:
+    """Per row of ``cost`` (over the sorted grid ``x``), the minimum refined by the parabola
+    through the best point and its neighbours."""
+    at = np.argmin(cost, axis=1)
+    j = np.clip(at, 1, len(x) - 2)
+    rows = np.arange(len(cost))
+    x1, x2, x3 = x[j - 1], x[j], x[j + 1]
+    y1, y2, y3 = cost[rows, j - 1], cost[rows, j], cost[rows, j + 1]
+    num = (x2 - x1) ** 2 * (y2 - y3) - (x2 - x3) ** 2 * (y2 - y1)
+    den = (x2 - x1) * (y2 - y3) - (x2 - x3) * (y2 - y1)
+    best = x[at]
+    curved = (den < 0) & (at == j)  # an inner minimum, not a maximum, a line or an end
+    vertex = x2 - 0.5 * num / np.where(curved, den, -1.0)
+    return np.where(curved, np.clip(vertex, x1, x3), best)
+
+
+def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
+                      base_power: np.ndarray, missing_w: np.ndarray, weight: np.ndarray,
+                      fit: np.ndarray, nuisance: np.ndarray | None = None,
+                      draws: np.ndarray | None = None) -> Strength:
     """The value of the effect's first strength parameter at which the effect's extra power
     best matches the missing power on the ``fit`` windows (weighted least squares, the
-    ``nuisance`` columns, calibrated parameters' signatures, free to re-adjust): the best of
+    ``nuisance`` columns, calibrated parameters' signatures, free to re-adjust by
+    ``NUISANCE_STEPS``): the best of
     the candidate's signatures, then a finer grid around it, refined by a parabola through
-    the best three points. Returns ({name: value}, or {} for an effect without a strength
-    parameter; the nuisance coefficients there)."""
+    the best three points. The interval repeats the fit on each bootstrap draw (``draws``:
+    counts per fit window, see :func:`~ebus_env.diagnostics.attribution.block_draws`) over
+    the candidate's and the fine signatures, and takes the 5 and 95 % quantiles."""
     name = candidate.strength_param
-    n_other = 0 if nuisance is None else nuisance.shape[1]
     if name is None:
-        return {}, np.zeros(n_other)
+        return Strength({}, {})
     sw = np.sqrt(weight[fit])
+    n_other = 0 if nuisance is None else nuisance.shape[1]
     others = np.zeros((int(fit.sum()), 0)) if nuisance is None else nuisance[fit] * sw[:, None]
+    counts = np.ones((1, int(fit.sum())))
 
-    def solve(signatures):
-        out, coef = [], []
-        for s in signatures:
-            r = (missing_w[fit] - s[fit]) * sw
-            gamma = np.linalg.lstsq(others, r, rcond=None)[0] if n_other else np.zeros(0)
-            r = r - others @ gamma
-            out.append(float(r @ r))
-            coef.append(gamma)
-        return np.array(out), coef
+    def sse(signatures, counts=counts):
+        """(draws, signatures) weighted SSE, the nuisance columns re-fitted in each draw."""
+        out = np.empty((len(counts), len(signatures)))
+        for g, sig in enumerate(signatures):
+            r = (missing_w[fit] - sig[fit]) * sw
+            for d, c in enumerate(counts):
+                rr = r
+                if n_other:
+                    root = np.sqrt(c)
+                    rr = r - others @ lsq_linear(others * root[:, None], r * root,
+                                                 bounds=(-NUISANCE_STEPS, NUISANCE_STEPS)).x
+                out[d, g] = c @ (rr * rr)
+        return out
 
-    def sse(signatures):
-        return solve(signatures)[0]
-
-    coarse = np.sort(np.unique(candidate.strengths))
-    k = int(np.argmin(sse(candidate.signatures_w[[list(candidate.strengths).index(v)
-                                                   for v in coarse]])))
+    strengths = np.asarray(candidate.strengths, float)
+    coarse, first = np.unique(strengths, return_index=True)
+    k = int(np.argmin(sse(candidate.signatures_w[first])[0]))
     low, high = coarse[max(k - 1, 0)], coarse[min(k + 1, len(coarse) - 1)]
-    model, params = model_with(candidate.bus, dt_s, values)
     fine = np.linspace(low, high, GRID)
-    rows, _ = strength_rows(model, params, name, fine)
-    cost, gammas = solve(window_power(model, profiles, rows, windows, basis, energy_j)
-                         - base_power)
-    j = int(np.argmin(cost))
-    best = fine[j]
-    if 0 < j < len(fine) - 1:
-        a, b, c = cost[j - 1], cost[j], cost[j + 1]
-        if a - 2 * b + c > 0:
-            best = fine[j] + 0.5 * (a - c) / (a - 2 * b + c) * (fine[1] - fine[0])
-    return {name: float(np.clip(best, low, high))}, gammas[j]
+    rows, _ = strength_rows(candidate.model, candidate.params, name, fine)
+    fine_sig = window_power(candidate.model, profiles, rows, windows, basis, energy_j) \
+        - base_power
+    cost = sse(fine_sig)
+    best = float(np.clip(_vertex(fine, cost), low, high)[0])
+    interval = (best, best)
+    if draws is not None and len(draws):
+        grid, order = np.unique(np.concatenate([coarse, fine]), return_index=True)
+        signatures = np.vstack([candidate.signatures_w[first], fine_sig])[order]
+        spread = _vertex(grid, sse(signatures, draws))
+        interval = tuple(np.quantile(spread, [0.05, 0.95]).tolist())
+        interval = (min(interval[0], best), max(interval[1], best))
+    lo, hi = candidate.model.bounds[candidate.model.param_index(name)]
+    return Strength({name: best}, {name: interval},
+                    _beyond_bound(fine, cost[0], lo, hi))
+
+
+def _beyond_bound(x: np.ndarray, cost: np.ndarray, low: float, high: float) -> bool:
+    """Whether the best fit wants a strength beyond the parameter's bounds: the minimum over
+    the grid ``x`` lies at a bound and the parabola through the three points nearest to it
+    has its vertex more than ``AT_BOUND`` of the range beyond (or no minimum at all). A true
+    strength at the bound itself puts the vertex there, not beyond."""
+    j, margin = int(np.argmin(cost)), AT_BOUND * (high - low)
+    if j == 0 and x[0] <= low + margin:
+        ends, beyond = slice(0, 3), lambda v: v < low - margin
+    elif j == len(x) - 1 and x[-1] >= high - margin:
+        ends, beyond = slice(-3, None), lambda v: v > high + margin
+    else:
+        return False
+    a, b, c = np.polyfit(x[ends], cost[ends], 2)
+    return bool(a <= 0 or beyond(-b / (2 * a)))

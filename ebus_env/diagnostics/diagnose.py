@@ -18,9 +18,9 @@ from ebus_env.calibration.isopt import ISOPTSettings
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics import attribution, clues, quality, residual
 from ebus_env.diagnostics.candidates import (
+    Strength,
     effect_candidates,
     estimate_strength,
-    model_with,
     parameter_candidates,
 )
 from ebus_env.diagnostics.ladder import (
@@ -37,6 +37,7 @@ WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
 """Default window per basis: SoC needs minutes to rise above its quantisation; measured
 current x voltage is a power already."""
 WORST = 5
+CLUE_SIGMA = 3.0
 START_UP_S = 120.0
 """Windows that start this soon after the start of a log are left out of the attribution:
 the log does not say when the driver switched the heater or other systems on."""
@@ -54,6 +55,8 @@ class Diagnosis:
     sentence: str
     why: str
     significance: float  # of the missing power above noise, in standard deviations
+    status: str  # "named", "noise", "outside library", "tie", "parameter", "implausible"
+    mode_clue: str | None  # the operating mode where the power is missing
     ranking: list[dict]
     parameters: list[dict]
     selected: list[str]
@@ -81,6 +84,7 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "significance",
+                "status", "mode_clue",
                 "ranking", "parameters", "selected", "set_aside", "modes", "bins",
                 "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
                 "calibration", "timings")
@@ -174,50 +178,58 @@ def _worst(anchored, windows, missing, noise, usable) -> list[dict]:
     return out
 
 
-def _sentence(verdict, ranking, estimate, model, why) -> str:
+def _sentence(found, by_name, model) -> str:
+    verdict = found.verdict
+    if found.status == "outside library":
+        return f"No library effect explains it: {found.why}."
     if verdict is None:
-        return f"No missing effect is supported by the data: {why}."
-    top = next(a for a in ranking if a["effect"] == verdict)
-    eff = top["object"]
+        return f"No missing effect is supported by the data: {found.why}."
+    top = next(a for a in found.ranking if a["effect"] == verdict)
+    eff = by_name[verdict].effect
     title = eff.title[:1].upper() + eff.title[1:]
     text = (f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
             "of the missing battery power on held-out windows")
-    for name, value in estimate.items():
+
+    def shown(value):
+        return f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
+
+    for name, value in found.estimate.items():
         info = model.param_info(name)
         unit = "" if info.unit == "1" else f" {info.unit}"
-        shown = f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
-        text += f"; {name.split('.', 1)[1]} about {shown}{unit}"
+        low, high = found.interval[name]
+        text += (f"; {name.split('.', 1)[1]} about {shown(value)}{unit} "
+                 f"(90 % interval {shown(low)} to {shown(high)})")
     return text + "."
 
 
-def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
-             add: Sequence = (), window_s: float | None = None, settings=None,
-             polish_starts: int | None = None, loader_notes: Sequence[str] = (),
-             progress=None) -> Diagnosis:
-    """Diagnose ``bus`` against measured ``profiles`` (see the module docstring).
+# -- the stages: each takes what the ones before built, and builds no model twice -------------
+@dataclass
+class Residual:
+    """Stage 1: the missing power per window of the model as given (or calibrated)."""
 
-    ``calibrate`` fits the paper's parameters on the calibration blocks first (see
-    :mod:`ebus_env.diagnostics.ladder`); ``add`` lists effects for the error ladder (each
-    added and re-calibrated in turn).
-    """
-    say = progress or (lambda text: None)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    profiles = list(profiles)
-    dt_s = profiles[0].dt_s
-    blocks = split_blocks(profiles)
-    model = bus.build(dt_s)
-    values: dict = {}
-    first_rung, calibration = None, None
-    if calibrate or add:
-        say("calibrating the model as given")
-        first_rung = calibrate_rung(bus, [], profiles, *blocks, dt_s, settings, polish_starts)
-        values = first_rung.values
-        calibration = first_rung.calibration_result.to_json()
-        timings["calibration_s"] = time.perf_counter() - t0
+    model: object
+    values: dict  # calibrated values (empty when not calibrated)
+    params: np.ndarray
+    every: int  # record every this many steps (a 1 s grid)
+    basis: str
+    window_s: float
+    windows: residual.Windows
+    anchored: list
+    energy_j: np.ndarray
+    base_power_w: np.ndarray
+    missing_w: np.ndarray
+    noise_w: np.ndarray
+    usable: np.ndarray
+    issues: list[dict]
+    excluded: int
+
+
+def residual_stage(model, profiles, values: dict, window_s: float | None,
+                   loader_notes: Sequence[str] = ()) -> Residual:
+    """Windows, the window-anchored runs and the missing power, with data problems and the
+    start-up left out."""
     params = model.param_vector(values)
-
-    t1 = time.perf_counter()
+    dt_s = profiles[0].dt_s
     every = max(1, int(round(1.0 / dt_s)))  # diagnose on a 1 s grid
     basis = residual.POWER_BASIS if all(map(residual.has_power, profiles)) \
         else residual.SOC_BASIS
@@ -234,57 +246,131 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
                                          loader_notes)
     usable &= enough
     excluded = int(np.sum(enough & ~usable))
-    start_up = windows.start_step * dt_s < START_UP_S
-    usable &= ~start_up
-    timings["residual_s"] = time.perf_counter() - t1
+    usable &= ~(windows.start_step * dt_s < START_UP_S)
+    return Residual(model, dict(values), params, every, basis, window_s, windows, anchored,
+                    energy, base_power, missing, noise, usable, issues, excluded)
 
-    t1 = time.perf_counter()
-    say("signatures of the candidate effects")
+
+def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say) -> tuple[
+        list, list[dict]]:
+    """Signatures of the missing effects (the user's named for the ladder among them) and of
+    the model's parameters; each effect candidate keeps its built model."""
     user = tuple(e for e in map(as_effect, add) if not e.builtin)
-    candidates, aside = effect_candidates(bus, dt_s, values, profiles, windows, basis, energy,
-                                          base_power, user, progress=lambda n: say(f"  {n}"))
-    candidates += parameter_candidates(model, params, profiles, windows, basis, energy,
-                                       base_power)
-    timings["candidates_s"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    nuisance = tuple(first_rung.calibration_result.free) if first_rung else ()
-    ranked, selected, verdict, why, significance = attribution.attribute(
-        missing, noise, candidates, usable, nuisance=nuisance)
+    dt_s = profiles[0].dt_s
+    candidates, aside = effect_candidates(bus, dt_s, res.values, profiles, res.windows,
+                                          res.basis, res.energy_j, res.base_power_w, user,
+                                          progress=lambda n: say(f"  {n}"))
+    candidates += parameter_candidates(res.model, res.params, profiles, res.windows, res.basis,
+                                       res.energy_j, res.base_power_w)
+    return candidates, aside
+
+
+@dataclass
+class Attributed:
+    """Stage 3: the ranking, the verdict, its strength and the breakdowns."""
+
+    ranked: list
+    selected: list[str]
+    verdict: str | None
+    why: str
+    significance: float
+    estimate: dict
+    verdict_w: np.ndarray | None
+    ranking: list[dict]
+    parameters: list[dict]
+    clues: list[dict]
+    modes: list[dict]
+    bins: dict
+    worst: list[dict]
+    status: str  # see attribution.Decision, or "implausible"
+    clue: str | None  # the operating mode where the power is missing
+    interval: dict  # 5-95 % bootstrap interval of the estimate
+
+
+def mode_clue(modes: list[dict]) -> str | None:
+    """The operating mode where the most energy is missing, among those whose missing power
+    stands out of its standard error by ``CLUE_SIGMA``: where an effect the library lacks
+    draws its energy."""
+    shown = [m for m in modes if np.isfinite(m["missing_kw"]) and np.isfinite(m["stderr_kw"])
+             and m["missing_kw"] > CLUE_SIGMA * m["stderr_kw"]]
+    if not shown:
+        return None
+    return max(shown, key=lambda m: m["missing_kwh"])["mode"]
+
+
+def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], blocks,
+                      profiles) -> Attributed:
+    """Which candidate explains the missing power, the verdict and its strength with a
+    bootstrap interval (fitted on the calibration blocks' windows), and where the power is
+    missing. A verdict whose strength sits at a bound of its parameter is withdrawn: the shape
+    fits, the strength is implausible."""
+    w = res.windows
+    decision = attribution.attribute(res.missing_w, res.noise_w, candidates, res.usable,
+                                     nuisance=nuisance)
+    ranked, verdict, why, status = (decision.ranking, decision.verdict, decision.why,
+                                    decision.status)
     by_name = {c.name: c for c in candidates}
-    weight = attribution.weights(noise)
+    weight = attribution.weights(res.noise_w)
     in_cal = np.array([in_blocks(blocks[0], k, np.array([s]))[0] for k, s in
-                       zip(windows.profile_index, windows.start_step, strict=True)], bool)
-    estimate, verdict_w = {}, None
+                       zip(w.profile_index, w.start_step, strict=True)], bool)
+    fit = res.usable & in_cal
+    strength, verdict_w = Strength({}, {}), None
+    modes, bins = _breakdowns(res.anchored, w, res.missing_w, res.noise_w, res.usable)
     if verdict is not None:
         best = by_name[verdict]
         moving = [by_name[n].signature_w for n in nuisance if n in by_name]
-        estimate, _ = estimate_strength(best, dt_s, values, profiles, windows, basis, energy,
-                                        base_power, missing, weight, usable & in_cal,
-                                        np.column_stack(moving) if moving else None)
-        scale = next(a.scale for a in ranked if a.name == verdict)
-        verdict_w = scale * best.signature_w
+        strength = estimate_strength(best, profiles, w, res.basis, res.energy_j,
+                                     res.base_power_w, res.missing_w, weight, fit,
+                                     np.column_stack(moving) if moving else None,
+                                     attribution.block_draws(int(fit.sum())))
+        if strength.at_bound:
+            (name, value), = strength.value.items()
+            why = (f"the shape of {verdict} fits, the strength is implausible: {name} ends at "
+                   f"its bound ({value:.4g})")
+            status, verdict = "implausible", None
+        else:
+            scale = next(a.scale for a in ranked if a.name == verdict)
+            verdict_w = scale * best.signature_w
+    clue = mode_clue(modes)
+    if status == "outside library" and clue:
+        why += f"; the power is missing mostly while {clue}"
     ranking = [{"effect": a.name, "kind": a.kind, "explained_fraction": a.explained,
-                "parameters": (estimate if a.name == verdict else {}), "object": by_name[
-                    a.name].effect} for a in ranked if a.kind != "parameter"]
-    sentence = _sentence(verdict, ranking, estimate, by_name[verdict].bus.build(dt_s)
-                         if verdict else model, why)
-    for row in ranking:
-        row.pop("object")
+                "explained_band": list(a.band),
+                "parameters": strength.value if a.name == verdict else {},
+                "interval": strength.interval if a.name == verdict else {}}
+               for a in ranked if a.kind != "parameter"]
     parameters = []
     for a in [a for a in ranked if a.kind == "parameter"][:10]:
-        i = model.param_index(a.name)
-        value = params[i] + a.scale * by_name[a.name].step
-        low, high = model.bounds[i]
+        i = res.model.param_index(a.name)
+        value = res.params[i] + a.scale * by_name[a.name].step
+        low, high = res.model.bounds[i]
         parameters.append({"parameter": a.name, "explained_fraction": a.explained,
                            "change_for_fit": a.scale * by_name[a.name].step,
                            "value_for_fit": value, "within_bounds": bool(low <= value <= high)})
-    found = clues.correlations(clues.window_features(anchored, windows), missing, weight,
-                               usable)
-    modes, bins = _breakdowns(anchored, windows, missing, noise, usable)
-    worst = _worst(anchored, windows, missing, noise, usable)
-    timings["attribution_s"] = time.perf_counter() - t1
+    found = clues.correlations(clues.window_features(res.anchored, w), res.missing_w, weight,
+                               res.usable)
+    worst = _worst(res.anchored, w, res.missing_w, res.noise_w, res.usable)
+    return Attributed(ranked, decision.selected, verdict, why, decision.significance,
+                      strength.value, verdict_w, ranking, parameters, found, modes, bins,
+                      worst, status, clue, strength.interval)
 
-    t1 = time.perf_counter()
+
+@dataclass
+class Fits:
+    """Stage 4: NRMSE before and after, the ladder, and the runs behind the plots."""
+
+    nrmse: dict
+    ladder: list
+    runs: list
+    after_runs: list
+
+
+def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_name: dict,
+                 add: Sequence, first_rung, blocks, settings, polish_starts, say) -> Fits:
+    """Held-out NRMSE of the model before, and after the verdict's effect (or the error
+    ladder of ``add``), each re-calibrated."""
+    dt_s = profiles[0].dt_s
+    model, values, verdict = res.model, res.values, found.verdict
     before_cal, before_held = fit_on_blocks(model, values, profiles, *blocks)
     nrmse = {"before": {"calibration": before_cal["nrmse"], "held_out": before_held["nrmse"],
                         "rmse_calibration_pct": before_cal["rmse_pct"],
@@ -292,49 +378,100 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
              "blocks": f"{sum(map(np.sum, blocks[0].scored))} calibration and "
                        f"{sum(map(np.sum, blocks[1].scored))} held-out blocks, the SoC "
                        "restarting from the measured one at each"}
-    runs = [model.simulate(p, params, record_every=every) for p in profiles]
-    after_bus, after_values, ladder = None, {}, []
+    runs = [model.simulate(p, res.params, record_every=res.every) for p in profiles]
+    after_model, after_values, ladder = None, {}, []
     if add:
         say("error ladder")
         ladder = error_ladder(bus, profiles, add, dt_s, settings, polish_starts, first_rung,
                               blocks, progress=lambda n: say(f"calibrating {n}"),
-                              estimates={verdict: estimate} if verdict else None)
-        after_bus, after_values = bus, ladder[-1].values
-        for item in add:
-            after_bus = after_bus.with_effect(item)
+                              estimates={verdict: found.estimate} if verdict else None)
+        after_model, after_values = ladder[-1].model, ladder[-1].values
         nrmse["after_is"] = f"the last rung of the error ladder ({ladder[-1].label})"
     elif verdict is not None:
-        after_bus, after_values = by_name[verdict].bus, {**values, **estimate}
+        best = by_name[verdict]
+        after_model, after_values = best.model, {**values, **found.estimate}
         nrmse["after_is"] = f"+ {verdict} at its estimated strength (fitted on calibration blocks)"
         if first_rung is not None:
             # the calibrated parameters absorbed part of the effect: re-fit them with it
             say(f"re-fitting with {verdict}")
             local = replace(settings or ISOPTSettings(), iterations=0)
-            rung = calibrate_rung(after_bus, [by_name[verdict].effect], profiles, *blocks,
-                                  dt_s, local, polish_starts, f"+ {verdict}", start=after_values)
+            rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
+                                  1, f"+ {verdict}", start=after_values, model=best.model)
             after_values = rung.values
             nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
     if first_rung is not None and not ladder:
         ladder = [first_rung]
     after_runs = []
-    if after_bus is not None:
-        after_model, after_params = model_with(after_bus, dt_s, after_values)
+    if after_model is not None:
         a_cal, a_held = fit_on_blocks(after_model, after_values, profiles, *blocks)
         nrmse["after"] = {"calibration": a_cal["nrmse"], "held_out": a_held["nrmse"],
                           "rmse_calibration_pct": a_cal["rmse_pct"],
                           "rmse_held_out_pct": a_held["rmse_pct"]}
-        after_runs = [after_model.simulate(p, after_params, record_every=every)
+        after_params = after_model.param_vector(after_model.carry_over(after_values))
+        after_runs = [after_model.simulate(p, after_params, record_every=res.every)
                       for p in profiles]
+    return Fits(nrmse, ladder, runs, after_runs)
+
+
+def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
+             add: Sequence = (), window_s: float | None = None, settings=None,
+             polish_starts: int | None = None, loader_notes: Sequence[str] = (),
+             progress=None) -> Diagnosis:
+    """Diagnose ``bus`` against measured ``profiles`` (see the module docstring), in four
+    stages that share the models they build: residual, candidates, attribution, ladder.
+
+    ``calibrate`` fits the paper's parameters on the calibration blocks first (see
+    :mod:`ebus_env.diagnostics.ladder`); ``add`` lists effects for the error ladder (each
+    added and re-calibrated in turn).
+    """
+    say = progress or (lambda text: None)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    profiles = list(profiles)
+    dt_s = profiles[0].dt_s
+    blocks = split_blocks(profiles)
+    model = bus.build(dt_s)
+    first_rung = None
+    if calibrate or add:
+        say("calibrating the model as given")
+        first_rung = calibrate_rung(bus, [], profiles, *blocks, dt_s, settings, polish_starts,
+                                    model=model)
+        timings["calibration_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    res = residual_stage(model, profiles, first_rung.values if first_rung else {}, window_s,
+                         loader_notes)
+    timings["residual_s"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    say("signatures of the candidate effects")
+    candidates, aside = candidate_stage(bus, res, profiles, add, say)
+    by_name = {c.name: c for c in candidates}
+    timings["candidates_s"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    nuisance = tuple(first_rung.calibration_result.free) if first_rung else ()
+    found = attribution_stage(res, candidates, nuisance, blocks, profiles)
+    verdict = found.verdict
+    sentence = _sentence(found, by_name, by_name[verdict].model if verdict else model)
+    timings["attribution_s"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    fits = ladder_stage(bus, res, profiles, found, by_name, add, first_rung, blocks, settings,
+                        polish_starts, say)
     timings["fit_s"] = time.perf_counter() - t1
     timings["total_s"] = time.perf_counter() - t0
     return Diagnosis(
-        bus=bus.name, logs=[p.name for p in profiles], basis=basis, window_s=window_s,
-        verdict=verdict, sentence=sentence, why=why, significance=significance, ranking=ranking,
-        parameters=parameters, selected=selected, set_aside=aside, modes=modes, bins=bins,
-        worst_windows=worst, clues=found, data_issues=issues, excluded_windows=excluded,
-        nrmse=nrmse, calibration=calibration, ladder=ladder, timings=timings,
-        windows=windows, missing_w=missing, noise_w=noise, usable=usable, verdict_w=verdict_w,
-        runs=runs, after_runs=after_runs, anchored=anchored,
-        after_label="model " + " ".join(r.label for r in ladder[1:]) if add else
+        bus=bus.name, logs=[p.name for p in profiles], basis=res.basis,
+        window_s=res.window_s, verdict=verdict, sentence=sentence, why=found.why,
+        significance=found.significance, status=found.status, mode_clue=found.clue,
+        ranking=found.ranking, parameters=found.parameters,
+        selected=found.selected, set_aside=aside, modes=found.modes, bins=found.bins,
+        worst_windows=found.worst, clues=found.clues, data_issues=res.issues,
+        excluded_windows=res.excluded, nrmse=fits.nrmse,
+        calibration=first_rung.calibration_result.to_json() if first_rung else None,
+        ladder=fits.ladder, timings=timings, windows=res.windows, missing_w=res.missing_w,
+        noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
+        after_runs=fits.after_runs, anchored=res.anchored,
+        after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if add else
         f"model + {verdict}")
-

@@ -5,8 +5,9 @@ hours); even blocks calibrate, odd blocks are held out. The model runs through t
 (a pack's temperature, a cabin's, carry on), but its SoC restarts from the measured one at
 each block, so a held-out block tests the model, not the error it carried in. Rung 0 is the
 model as given, calibrated; each further rung adds one effect and calibrates again, with the
-paper's parameters and the new effects' strength parameters free, starting from the rung
-before (and the diagnosis's estimate of the effect's strength, when it has one).
+paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`) and the new effects' strength
+parameters free together, starting from the rung before (and the diagnosis's estimate of the
+effect's strength, when it has one).
 """
 
 from __future__ import annotations
@@ -20,6 +21,19 @@ from ebus_env.calibration.problem import Blocks, CalibrationProblem, paper_param
 from ebus_env.config import BusConfig, resolve_effect
 from ebus_env.effects.base import Effect
 
+NUISANCE = {
+    "vehicle_body.curb_mass_kg": (0.75, 1.25),
+    "rolling_resistance.rolling_coef": (0.5, 1.5),
+    "auxiliaries.base_power_w": (0.0, 3.0),
+    "efficiency_map.gearbox_efficiency": (0.9, 1.04),
+    "rint_battery.cell_capacity_ah": (0.6, 1.6),
+    "rint_battery.cell_resistance_mohm": (0.3, 3.0),
+}
+"""The parameters that differ from bus to bus of one type (mass, rolling resistance,
+auxiliary base load, drivetrain efficiency, pack capacity and resistance), with the range a
+calibration searches as factors of the configured value (within the declared bounds): wide
+enough for a fleet's spread (the pack's, which the charging events pin down, also for another
+pack than the configured one), narrow enough that they cannot stand in for a missing effect."""
 BLOCK_S = 3600.0
 MIN_BLOCKS = 4
 SCAN = 11
@@ -65,13 +79,27 @@ class Rung:
     calibration: dict  # NRMSE, RMSE [%-points], ... on calibration blocks
     held_out: dict  # the same on held-out blocks
     calibration_result: CalibrationResult | None = field(default=None, repr=False)
+    model: object = field(default=None, repr=False)  # the built model of this rung
 
     def to_json(self) -> dict:
         pick = ("nrmse", "rmse_pct", "max_abs_error_pct")
         return {"label": self.label, "effects": self.effects,
                 "values": {k: float(v) for k, v in self.values.items()},
+                "free": list(self.calibration_result.free) if self.calibration_result else [],
                 "calibration": {k: float(self.calibration[k]) for k in pick},
                 "held_out": {k: float(self.held_out[k]) for k in pick}}
+
+
+def nuisance_ranges(model) -> dict[str, tuple[float, float]]:
+    """The :data:`NUISANCE` parameters the model has, with their search ranges."""
+    out = {}
+    for name, (low, high) in NUISANCE.items():
+        if name not in model.param_names:
+            continue
+        value = model.params[model.param_index(name)]
+        lo, hi = model.bounds[model.param_index(name)]
+        out[name] = (max(lo, low * value), min(hi, high * value))
+    return out
 
 
 def fit_on_blocks(model, values: dict, profiles, cal: Blocks, held: Blocks) -> tuple[dict, dict]:
@@ -101,26 +129,31 @@ def strength_scan(problem, model, effect: Effect, bases: list[dict]) -> list[dic
 def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, held: Blocks,
                    dt_s: float,
                    settings=None, polish_starts: int | None = None, label: str = "as given",
-                   free: list[str] | None = None, start: dict | None = None) -> Rung:
+                   free: list[str] | None = None, start: dict | None = None,
+                   model=None) -> Rung:
     """Calibrate ``bus`` (with ``added`` effects already in it) on the calibration blocks of
-    ``profiles``.
+    ``profiles``: by default the paper's parameters, the bus-to-bus ones (:data:`NUISANCE`,
+    in their ranges) and the added effects' strength parameters are free together.
     The search starts from ``start`` (values by name) and from the bus's configured values,
-    each with the last added effect's strength scanned (:func:`strength_scan`)."""
-    model = bus.build(dt_s)
+    each with the last added effect's strength scanned (:func:`strength_scan`). ``model`` is
+    the bus's model when already built."""
+    model = model or bus.build(dt_s)
+    ranges = nuisance_ranges(model)
     if free is None:
-        free = paper_params(model)
+        free = paper_params(model) + list(ranges)
         for eff in added:
             free += [f"{eff.name}.{p}" for p in eff.strength_params if
                      f"{eff.name}.{p}" not in free]
+    ranges = {k: v for k, v in ranges.items() if k in free}
     starts = [model.carry_over(start or {}), {}]  # the rung before, the configured values
     if added and added[-1].strength_params:
-        problem = CalibrationProblem(model, profiles, free, blocks=cal)
+        problem = CalibrationProblem(model, profiles, free, ranges, blocks=cal)
         starts = strength_scan(problem, model, added[-1], starts)
-    result = calibrate(model, profiles, free=free, settings=settings, validate=profiles,
-                       polish_starts=polish_starts, start=starts, blocks=cal,
+    result = calibrate(model, profiles, free=free, bounds=ranges, settings=settings,
+                       validate=profiles, polish_starts=polish_starts, start=starts, blocks=cal,
                        validate_blocks=held)
     return Rung(label, [e.name for e in added], dict(result.values), result.fit,
-                result.validation, result)
+                result.validation, result, model)
 
 
 def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None,

@@ -29,10 +29,13 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                   _f(w["missing_kw"]), _f(w["stderr_kw"]), _f(w["mean_speed_kmh"], 1),
                   _f(w["ambient_degc"], 1), _f(w["soc_pct"], 1), w["main_mode"]]
                  for w in d.worst_windows]))
-    out.append(("Which effect is missing (held-out share of the missing power)",
-                ["effect", "kind", "explained %", "estimate"],
+    out.append(("Which effect is missing (held-out share of the missing power, with its "
+                "5-95 % band over bootstrap resamples of the windows)",
+                ["effect", "kind", "explained %", "band %", "estimate (90 % interval)"],
                 [[r["effect"], r["kind"], _f(100 * r["explained_fraction"], 0),
-                  ", ".join(f"{k} = {v:.4g}" for k, v in r["parameters"].items())]
+                  "{:.0f} to {:.0f}".format(*(100 * b for b in r["explained_band"])),
+                  ", ".join(f"{k} = {v:.4g} ({r['interval'][k][0]:.4g} to "
+                            f"{r['interval'][k][1]:.4g})" for k, v in r["parameters"].items())]
                  for r in d.ranking]))
     out.append(("Parameters of the model's effects", ["parameter", "explained %",
                                                       "change that fits", "value then"],

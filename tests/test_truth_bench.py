@@ -1,0 +1,60 @@
+"""The out-of-family truth bench in CI: a small fixed subset of its days (1 day per effect and
+3 controls, the last 4 h of each day, from each truth source), diagnosed calibrated on the
+bench's baseline bus. On every day the diagnosis may abstain, but never names a wrong effect
+(and names none on a control day or for a load outside the library); on the days of
+``NAMED_RIGHT`` the bench's run named the hidden effect, and must go on naming it."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+bench = pytest.importorskip("bench_diagnose", reason="benchmarks/bench_diagnose.py not found")
+
+NAMED_RIGHT = {
+    # (source, case_id) the bench's smoke run named right (docs/validation.md)
+    ("truthsim", "road_grade_00"), ("truthsim", "cabin_heating_00"),
+    ("truthsim", "regen_soc_limit_00"),
+}
+
+
+def _available(source: str) -> str:
+    """Why a truth source cannot run here ('' when it can)."""
+    if importlib.util.find_spec("benchmarks.truth") is None:
+        return "benchmarks/truth is not in this checkout"
+    if source == "fastsim" and importlib.util.find_spec("fastsim") is None:
+        return "fastsim is not installed (pip install 'fastsim>=3')"
+    return bench.truth_module(source)[1]
+
+
+def _jobs():
+    out = []
+    for source in bench.SOURCES:
+        why = _available(source)
+        if why:
+            out.append(pytest.param(source, None, marks=pytest.mark.skip(reason=why),
+                                    id=f"{source}-unavailable"))
+            continue
+        for case in bench.truth_cases(source, smoke=True):
+            out.append(pytest.param(source, case, id=f"{source}-{case.case_id}"))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("source", "case"), _jobs())
+def test_truth_day_gets_no_wrong_verdict(source, case, tmp_path_factory):
+    folder = tmp_path_factory.getbasetemp() / "truth-days"
+    folder.mkdir(exist_ok=True)
+    row = bench.diagnose_truth_day((source, case, str(folder)))
+    expected = row["expected"] if row["expected"] != "outside_library" else None
+    assert row["verdict"] in (None, expected), (row["verdict"], row["why"])
+    if (source, case.case_id) in NAMED_RIGHT:
+        assert row["verdict"] == expected, (row["status"], row["why"])
+    for name, (low, high) in row["interval"].items():
+        assert low <= row["estimate"][name] <= high
