@@ -221,7 +221,12 @@ def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():
     assert {"door_share", "idle_share"} & {c["feature"] for c in first.clues[:3]}
     d = diagnose(load_bus("12m"), profiles, add=[str(ROOT / case.effect)])
     assert d.verdict == "door_compressor"
-    assert improvement(d.ladder) >= 0.5
+    # The first rung calibrates the bus-to-bus parameters too, and its auxiliary base load
+    # takes up the compressor's mean power (0.0038 held-out, against 0.0057 with the paper's
+    # seven alone), so the relative fall is smaller than the absolute gain: held-out NRMSE
+    # 0.0022 after adding the effect, as before.
+    assert improvement(d.ladder) >= 0.4
+    assert d.ladder[-1].held_out["nrmse"] <= 0.0025
     assert d.ladder[-1].values["door_compressor.power_w"] == pytest.approx(5000.0, rel=0.15)
     model = load_bus("12m").with_effect(hidden.hidden_effect(case)).build()
     assert hasattr(model.kernel("run"), "signatures")  # compiled by numba like the built-ins
