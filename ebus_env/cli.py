@@ -517,7 +517,9 @@ def diagnose(
     without: WithoutOpt = None,
     overlay: OverlayOpt = None,
     calibrate: Annotated[bool, typer.Option(
-        help="Calibrate the paper's parameters on the calibration blocks first")] = False,
+        help="Calibrate on the calibration blocks first: the paper's parameters and the "
+             "bus-to-bus ones (mass, C_rr, aux base, drivetrain efficiency, cell capacity and "
+             "resistance)")] = False,
     add: Annotated[list[str] | None, typer.Option(
         help="Error ladder: add this effect and re-calibrate (repeatable, in order; "
              "my_effects.py:Name for your own)")] = None,
