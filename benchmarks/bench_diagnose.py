@@ -212,8 +212,9 @@ def truth_day(source: str, case, folder: Path):
     return load_log(log_path).profiles, json.loads(truth_path.read_text())
 
 
-def diagnose_truth_day(job) -> dict:
-    """Diagnose one truth day, calibrated, and add the right effect (worker of the pool)."""
+def diagnose_truth_day(job, ladder: bool = True) -> dict:
+    """Diagnose one truth day, calibrated, and (``ladder``) add the right effect and
+    re-calibrate (worker of the pool)."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
     source, case, folder = job
@@ -231,7 +232,7 @@ def diagnose_truth_day(job) -> dict:
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
            / 3600.0, "why": d.why}
     expected = truth["expected_verdict"]
-    if expected not in (None, "outside_library"):
+    if ladder and expected not in (None, "outside_library"):
         rungs = error_ladder(bus, profiles, [expected], profiles[0].dt_s, first=d.ladder[0],
                              blocks=split_blocks(profiles))
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
