@@ -42,9 +42,8 @@ def _free_port() -> int:
 @contextmanager
 def two_node_cluster(env: dict):
     """A head node and a second node joining it at 127.0.0.1, one CPU each (the commands of
-    docs/study.md); both stopped, by their own process groups, on exit. Ray (by design) gives
-    nodes the machine's own interface address rather than loopback: nothing leaves the
-    machine."""
+    docs/study.md, with both nodes on loopback); both stopped, by their own process groups, on
+    exit."""
     port = _free_port()
     address = f"127.0.0.1:{port}"
     temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths
@@ -52,7 +51,8 @@ def two_node_cluster(env: dict):
             "--include-dashboard=false"]
     procs = []
     try:
-        for n, args in enumerate((head, [f"--address={address}"]), start=1):
+        for n, args in enumerate((head, [f"--address={address}", "--node-ip-address=127.0.0.1"]),
+                                 start=1):
             procs.append(subprocess.Popen([RAY, "start", *args, "--num-cpus=1", "--block"],
                                           env=env, start_new_session=True,
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
