@@ -76,7 +76,7 @@ class Diagnosis:
     missing_w: np.ndarray = field(repr=False)
     noise_w: np.ndarray = field(repr=False)
     usable: np.ndarray = field(repr=False)
-    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict explains
+    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict's fit predicts
     runs: list = field(repr=False)  # free-running model, each profile
     after_runs: list = field(repr=False)  # the model "after" (nrmse["after_is"])
     anchored: list = field(repr=False)  # the window-anchored runs
@@ -329,8 +329,9 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"its bound ({value:.4g})")
             status, verdict = "implausible", None
         else:
-            scale = next(a.scale for a in ranked if a.name == verdict)
-            verdict_w = scale * best.signature_w
+            # like with like: the missing power the fit predicts, the calibrated parameters
+            # moving back included (they absorbed part of the effect)
+            verdict_w = next(a.fit_w for a in ranked if a.name == verdict)
     clue = mode_clue(modes)
     if status == "outside library" and clue:
         why += f"; the power is missing mostly while {clue}"
