@@ -19,13 +19,14 @@ from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
 from ebus_env.report import FIGURES, breakdown_label, write_json
 from ebus_env.simulate import run_profiles
+from ebus_env.units import shown_unit, with_unit
 
 BMW_DIR = paths.data("measured", "bmw_i3_tum")
 TRIPS = ("B16", "B03", "B02")
 
 
 def _tables(summary: dict) -> list[Table]:
-    rows = [[label, f"{summary[key]:.{d}f}", unit] for key, label, unit, d in FIGURES
+    rows = [[label, f"{summary[key]:.{d}f}", shown_unit(unit)] for key, label, unit, d in FIGURES
             if key in summary and isinstance(summary[key], float)]
     energy = [[breakdown_label(k), f"{v:.2f}"] for k, v in summary["breakdown_kwh"].items()]
     return [Table(["figure", "value", "unit"], rows), Table(["energy", "kWh"], energy)]
@@ -46,7 +47,7 @@ def _calibration_section(model, numbers: dict, say) -> Section:
     numbers["bmw_i3_calibration"] = result.to_json()
     say(f"BMW i3 calibrated on B16 (NRMSE {result.fit['nrmse']:.4f}), validated on B03 "
         f"(NRMSE {result.validation['nrmse']:.4f}) in {result.wall_time_s:.1f} s")
-    rows = [[p, f"{result.values[p]:.4g} {result.units[p]}", result.determinacy[p].status]
+    rows = [[p, with_unit(f"{result.values[p]:.4g}", result.units[p]), result.determinacy[p].status]
             for p in result.free]
     fits = [[k, f"{result.fit[k]:.4f}", f"{result.validation[k]:.4f}"]
             for k in ("nrmse", "rmse_pct", "max_abs_error_pct", "correlation", "energy_error_pct")]

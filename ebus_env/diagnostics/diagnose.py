@@ -32,6 +32,7 @@ from ebus_env.diagnostics.ladder import (
     in_blocks,
     split_blocks,
 )
+from ebus_env.units import with_unit
 
 WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
 """Default window per basis: SoC needs minutes to rise above its quantisation; measured
@@ -195,9 +196,8 @@ def _sentence(found, by_name, model) -> str:
 
     for name, value in found.estimate.items():
         info = model.param_info(name)
-        unit = "" if info.unit == "1" else f" {info.unit}"
         low, high = found.interval[name]
-        text += (f"; {name.split('.', 1)[1]} about {shown(value)}{unit} "
+        text += (f"; {name.split('.', 1)[1]} about {with_unit(shown(value), info.unit)} "
                  f"(90 % interval {shown(low)} to {shown(high)})")
     return text + "."
 
