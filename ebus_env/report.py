@@ -51,6 +51,8 @@ FIGURES = [
     ("soc_end_error_pct", "SoC error at the end", "%-pts", 2),
     ("battery_shortfall_kwh", "power the pack could not deliver", "kWh", 3),
     ("wall_time_s", "simulation wall time", "s", 4),
+    ("wall_time_no_trace_s", "simulation wall time, no trace recorded", "s", 4),
+    ("build_s", "model build and compile (or load from the cache)", "s", 2),
 ]
 
 

@@ -19,6 +19,9 @@ def test_demo_writes_a_self_contained_report(tmp_path):
     numbers = json.loads((tmp_path / "summary.json").read_text())
     assert 0.8 < numbers["12m_sort2_day"]["kwh_per_km"] < 1.6
     assert numbers["18m_sort2_day"]["kwh_per_km"] > numbers["12m_sort2_day"]["kwh_per_km"]
+    day = numbers["12m_sort2_day"]  # the simulation's own time, the build's apart
+    assert day["wall_time_no_trace_s"] > 0 and day["build_s"] > 0 and day["wall_time_s"] > 0
+    assert "simulation wall time, no trace recorded" in html
     assert numbers["bmw_i3_B16"]["soc_rmse_pct"] > 0
     calibrated = numbers["bmw_i3_calibration"]
     assert calibrated["nrmse"] < 0.5 * numbers["bmw_i3_B16"]["soc_nrmse"]
