@@ -175,15 +175,6 @@ def _run(fn):
             console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
                           soft_wrap=True)
             raise typer.Exit(2) from None
-        except Exception as exc:  # a user's effect numba cannot compile: say which and why
-            from ebus_env.effects.compile_errors import explain
-
-            explained = explain(exc)
-            if explained is None:
-                raise
-            console.print(f"[bold red]error:[/] {escape(str(explained))}", highlight=False,
-                          soft_wrap=True)
-            raise typer.Exit(2) from None
 
 
 @app.command()

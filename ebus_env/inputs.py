@@ -14,6 +14,7 @@ import warnings
 from dataclasses import dataclass
 
 from ebus_env.errors import ConfigError, InputWarning
+from ebus_env.units import with_unit
 
 
 def _num(x: float) -> str:
@@ -77,7 +78,7 @@ class Range:
 
     @property
     def _unit(self) -> str:
-        return "" if self.unit == "1" else f" {self.unit}"
+        return with_unit("", self.unit)
 
     def usual(self) -> str:
         """``outside the usual 5-50 km/h`` style; empty when every accepted value is usual."""

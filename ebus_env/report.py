@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from ebus_env.outputs import write_text
+from ebus_env.units import shown_unit
 
 TERM_LABELS = {  # the model's own energy terms; an effect's term takes the effect's label
     "traction": "traction (motor at wheels)",
@@ -50,6 +51,8 @@ FIGURES = [
     ("soc_end_error_pct", "SoC error at the end", "%-pts", 2),
     ("battery_shortfall_kwh", "power the pack could not deliver", "kWh", 3),
     ("wall_time_s", "simulation wall time", "s", 4),
+    ("wall_time_no_trace_s", "simulation wall time, no trace recorded", "s", 4),
+    ("build_s", "model build and compile (or load from the cache)", "s", 2),
 ]
 
 
@@ -63,7 +66,7 @@ def summary_tables(summary: dict, title: str = ""):
     figures.add_column("unit")
     for key, label, unit, digits in FIGURES:
         if key in summary and summary[key] is not None and not _nan(summary[key]):
-            figures.add_row(label, f"{summary[key]:.{digits}f}", unit)
+            figures.add_row(label, f"{summary[key]:.{digits}f}", shown_unit(unit))
     breakdown = Table(title="energy breakdown", show_header=True, header_style="bold")
     breakdown.add_column("effect")
     breakdown.add_column("kWh", justify="right")
@@ -119,7 +122,7 @@ def calibration_tables(result):
         how = "" if d is None else f"{d.status}: {d.low:.4g} .. {d.high:.4g}"
         if d is not None and d.partners:
             how += f" (trades off with {', '.join(d.partners)})"
-        params.add_row(name, f"{result.values[name]:.4g}", result.units[name],
+        params.add_row(name, f"{result.values[name]:.4g}", shown_unit(result.units[name]),
                        f"[{low:g}, {high:g}]", how)
     fit = Table(title="fit of SoC", header_style="bold")
     fit.add_column("figure")
@@ -131,5 +134,5 @@ def calibration_tables(result):
         row = [label, f"{result.fit.get(key, float('nan')):.{digits}f}"]
         if result.validation:
             row.append(f"{result.validation.get(key, float('nan')):.{digits}f}")
-        fit.add_row(*row, unit)
+        fit.add_row(*row, shown_unit(unit))
     return params, fit

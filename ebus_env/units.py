@@ -27,3 +27,17 @@ AIR_CP_J_PER_KG_K = 1005.0
 
 J_PER_KWH = 3.6e6
 """Joules in a kilowatt-hour."""
+
+
+DIMENSIONLESS = "1"
+"""The unit of a dimensionless quantity (a fraction, a count, a factor), as SI writes it."""
+
+
+def shown_unit(unit: str) -> str:
+    """The unit as people read it beside a number: none for a dimensionless quantity."""
+    return "" if unit == DIMENSIONLESS else unit
+
+
+def with_unit(number: str, unit: str) -> str:
+    """``"27.5 degC"``, ``"0.099"`` (no unit "1" after a dimensionless number)."""
+    return f"{number} {unit}" if shown_unit(unit) else number

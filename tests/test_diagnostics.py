@@ -342,3 +342,20 @@ def test_calibration_on_blocks_scores_only_its_blocks():
     assert result.values["aux_schedule.scale"] == pytest.approx(5.0, abs=0.3)
     assert result.fit["samples"] + result.validation["samples"] == pytest.approx(
         10 * 3600, abs=20)
+
+
+def test_the_explained_line_is_the_fit_with_the_calibrated_parameters_moving_back():
+    """After a calibration a parameter has absorbed most of the effect: the missing power is
+    small, and the effect's part alone lies far from it. The plotted fit must include the
+    parameter's move, so that it passes through the missing-power points."""
+    rng = np.random.default_rng(3)
+    n = 120
+    heat = 8000 + 2000 * np.sin(np.arange(n) / 11)  # the effect's signature [W]
+    aux = np.full(n, 8000.0)  # the calibrated base load's signature: one step moves 8 kW
+    y = heat - 0.95 * aux + rng.normal(0, 150, n)
+    noise = np.full(n, 150.0)
+    cands = [_candidate("heat", "missing effect", heat), _candidate("aux", "parameter", aux)]
+    d = attribution.attribute(y, noise, cands, np.ones(n, bool), nuisance=("aux",))
+    top = next(a for a in d.ranking if a.name == "heat")
+    assert np.sqrt(np.mean((top.scale * heat - y) ** 2)) > 5000  # the effect alone: kW off
+    assert np.sqrt(np.mean((top.fit_w - y) ** 2)) < 300  # the fit: within the noise

@@ -387,3 +387,21 @@ def test_an_effect_offers_handles_by_name_and_unit():
         declare(cabin_setpoint="heater_kw")
     with pytest.raises(ValueError, match="'charge_pulse_duty' is in 1; parameter 'heater_kw' in kW"):
         declare(charge_pulse_duty="heater_kw")
+
+
+def test_an_effect_numba_cannot_compile_is_named_with_its_file_line_and_fix():
+    """From Python as from the CLI: which effect, file and line, and what to do."""
+    from pathlib import Path
+
+    from ebus_env.config import load_bus
+    from ebus_env.errors import CompositionError
+
+    source = Path(__file__).parent / "user_effects" / "uncompilable.py"
+    model = load_bus("12m").with_effect(f"{source}:linear_drag").build()
+    with pytest.raises(CompositionError) as info:
+        model.compile()
+    text = str(info.value)
+    call_line = source.read_text().splitlines().index(
+        "    return drag_of(coef_n_per_mps, speed_mps)") + 1
+    assert "'linear_drag'" in text and f"{source}, line {call_line}" in text
+    assert "@helper" in text and len(text.splitlines()) == 1

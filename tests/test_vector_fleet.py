@@ -73,6 +73,28 @@ def test_vector_env_equals_single_envs_step_for_step(mode, config):
     assert len(lengths) > 5 if config.get("decide_at_stops") else lengths == {60.0}
 
 
+def test_vector_env_flags_observations_at_their_bound_as_the_single_env_does():
+    config = {"layover_min": 2.5, "decision_s": 600}
+    vec = EBusVectorEnv(num_envs=2, **config)
+    vec.reset(seed=0)
+    single = gym.make("EBus-v0", **config)
+    single.reset(seed=0)
+    slow, fast = -np.ones(5, np.float32), np.zeros(5, np.float32)
+    with pytest.warns(UserWarning) as warned:
+        for _ in range(200):  # sub-env 0 drives as slowly as it may, sub-env 1 normally
+            obs, _, terminated, truncated, info = vec.step(np.stack([slow, fast]))
+            one = single.step(slow)[4]
+            flags = info["clipped_observations"]
+            assert [n for n, b in flags.items() if b[0]] == one["clipped_observations"]
+            if flags["schedule_delay_min"][0] or terminated.any() or truncated.any():
+                break
+    assert flags["schedule_delay_min"].tolist() == [True, False]
+    said = [str(w.message) for w in warned]  # the vector env's, and the single env's
+    assert sum("(schedule_delay_min) holds its bound in sub-env 0: the true value" in s
+               for s in said) == 1
+    assert info["schedule_delay_min"][0] > 60.0 and obs[0, 7] == pytest.approx(60.0)
+
+
 def test_vector_env_checks_actions_and_seeds():
     venv = gym.make_vec("EBus-v0", num_envs=3, **SHORT)
     venv.reset(seed=0)

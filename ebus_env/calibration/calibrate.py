@@ -15,6 +15,7 @@ from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
 from ebus_env.calibration.problem import Blocks, CalibrationProblem
 from ebus_env.profile import Profile
+from ebus_env.units import shown_unit
 
 NEAR_REL = 0.10
 """Parameter values whose fit is within this fraction of the best NRMSE (plus ``NEAR_ABS``)
@@ -165,7 +166,7 @@ class CalibrationResult:
             ax.axvline(self.values[name], color="k", lw=0.8)
             ax.set_yscale("log")
             ax.set_title(f"{name}\n{d.status}", fontsize=8)
-            ax.set_xlabel(self.units[name], fontsize=8)
+            ax.set_xlabel(shown_unit(self.units[name]), fontsize=8)
         for ax in axes.ravel()[len(names):]:
             ax.axis("off")
         fig.savefig(path, dpi=100, format="png")

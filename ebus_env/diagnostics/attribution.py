@@ -57,6 +57,7 @@ class Attribution:
     kind: str
     explained: float  # held-out share of the missing power
     scale: float  # beta: the candidate's strength relative to its signature
+    fit_w: np.ndarray | None = field(default=None, repr=False)  # per window: beta s + nuisance
     estimate: dict = field(default_factory=dict)  # parameter -> value, for the verdict
     lost: np.ndarray = field(default=None, repr=False)  # held-out loss per window
     total: np.ndarray = field(default=None, repr=False)  # loss of predicting nothing
@@ -131,12 +132,13 @@ def _loss(x: np.ndarray, y: np.ndarray, w: np.ndarray, bounds) -> tuple[float, n
 
 def held_out_best(variants: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: bool,
                   folds: int, nuisance: np.ndarray | None = None) -> tuple[
-        float, int, float, np.ndarray, np.ndarray]:
+        float, int, np.ndarray, np.ndarray, np.ndarray]:
     """Held-out share of y explained by one of several signatures (rows of ``variants``: an
     effect at several strengths) together with the ``nuisance`` columns (parameters free to
     re-adjust), the variant that fits the training folds best chosen in each fold. Returns
-    the share, the variant that fits all windows best, its coefficient, and per window the
-    held-out loss and the loss of predicting nothing (for the bootstrap)."""
+    the share, the variant that fits all windows best, its coefficients (the variant's first,
+    then the nuisance columns'), and per window the held-out loss and the loss of predicting
+    nothing (for the bootstrap)."""
     extra = np.zeros((len(y), 0)) if nuisance is None else nuisance
     signs = np.zeros(1 + extra.shape[1])
     bounds = (np.concatenate([[0.0 if nonneg else -np.inf], np.full(extra.shape[1],
@@ -162,7 +164,7 @@ def held_out_best(variants: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: bo
     everything = fits(np.arange(len(y)))
     chosen = int(np.argmin([f[0] for f in everything]))
     share = 1.0 - lost.sum() / total.sum() if total.sum() > 0 else 0.0
-    return share, chosen, float(everything[chosen][1][0]), lost, total
+    return share, chosen, everything[chosen][1], lost, total
 
 
 def block_draws(n: int, block: int = BOOT_BLOCK, draws: int = BOOT_DRAWS,
@@ -226,12 +228,16 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
     nuisance = tuple(n for n in nuisance if n in by_name)
     extra = np.column_stack([by_name[n].signature_w[usable] for n in nuisance]) \
         if nuisance else None
+    moving = np.column_stack([by_name[n].signature_w for n in nuisance]) if nuisance else None
     ranking = []
     for c in candidates:
         effect = c.kind != "parameter"
-        explained, c.chosen, scale, lost, total = held_out_best(
+        explained, c.chosen, beta, lost, total = held_out_best(
             c.signatures_w[:, usable], y, w, effect, folds, extra if effect else None)
-        ranking.append(Attribution(c.name, c.kind, explained, scale, lost=lost, total=total))
+        # what the fit predicts: the effect, and the calibrated parameters moving back with it
+        fit_w = beta[0] * c.signature_w + (moving @ beta[1:] if len(beta) > 1 else 0.0)
+        ranking.append(Attribution(c.name, c.kind, explained, float(beta[0]), fit_w,
+                                   lost=lost, total=total))
     ranking.sort(key=lambda a: -a.explained)
     counts = block_draws(len(y))
     for a in ranking:

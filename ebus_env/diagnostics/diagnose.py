@@ -32,6 +32,7 @@ from ebus_env.diagnostics.ladder import (
     in_blocks,
     split_blocks,
 )
+from ebus_env.units import with_unit
 
 WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
 """Default window per basis: SoC needs minutes to rise above its quantisation; measured
@@ -76,7 +77,7 @@ class Diagnosis:
     missing_w: np.ndarray = field(repr=False)
     noise_w: np.ndarray = field(repr=False)
     usable: np.ndarray = field(repr=False)
-    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict explains
+    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict's fit predicts
     runs: list = field(repr=False)  # free-running model, each profile
     after_runs: list = field(repr=False)  # the model "after" (nrmse["after_is"])
     anchored: list = field(repr=False)  # the window-anchored runs
@@ -195,9 +196,8 @@ def _sentence(found, by_name, model) -> str:
 
     for name, value in found.estimate.items():
         info = model.param_info(name)
-        unit = "" if info.unit == "1" else f" {info.unit}"
         low, high = found.interval[name]
-        text += (f"; {name.split('.', 1)[1]} about {shown(value)}{unit} "
+        text += (f"; {name.split('.', 1)[1]} about {with_unit(shown(value), info.unit)} "
                  f"(90 % interval {shown(low)} to {shown(high)})")
     return text + "."
 
@@ -329,8 +329,9 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"its bound ({value:.4g})")
             status, verdict = "implausible", None
         else:
-            scale = next(a.scale for a in ranked if a.name == verdict)
-            verdict_w = scale * best.signature_w
+            # like with like: the missing power the fit predicts, the calibrated parameters
+            # moving back included (they absorbed part of the effect)
+            verdict_w = next(a.fit_w for a in ranked if a.name == verdict)
     clue = mode_clue(modes)
     if status == "outside library" and clue:
         why += f"; the power is missing mostly while {clue}"

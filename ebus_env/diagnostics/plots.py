@@ -64,8 +64,9 @@ def missing_power(d):
         ax.plot(mid[~d.usable], kw[~d.usable], "x", color="0.5",
                 label="excluded (start-up or data problem)")
     if d.verdict_w is not None:
+        moved = " (calibrated parameters re-adjusted with it)" if d.calibration else ""
         ax.step(w.start_h, d.verdict_w / 1e3, where="post", color="C2",
-                label=f"explained by {d.verdict}")
+                label=f"explained by {d.verdict}{moved}")
     ax.axhline(0, color="k", lw=0.6)
     ax.set_ylabel("missing power [kW]")
     ax.set_title(f"Battery power the model misses, per {d.window_s:g} s window ({d.basis})")

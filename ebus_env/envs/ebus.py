@@ -7,12 +7,18 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from ebus_env.envs.batch import OBSERVATIONS, OUT, S_SOC, BusBatch
-from ebus_env.envs.spec import ACTION_NAMES, EnvConfig, bus_info, checked_actions, physical, reward_of, spaces
+from ebus_env.envs.batch import OBSERVATIONS, S_SOC, BusBatch
+from ebus_env.envs.spec import (
+    ACTION_NAMES,
+    EnvConfig,
+    bus_info,
+    checked_actions,
+    clipped_observations,
+    physical,
+    reward_of,
+    spaces,
+)
 from ebus_env.errors import ConfigError, EnvError
-
-_IN_INFO = [(k, o) for k, o in enumerate(OBSERVATIONS) if o[0] in OUT]
-"""Observations whose true value ``info`` carries (from ``OUT``), checked against the bounds."""
 
 
 class EBusEnv(gym.Env):
@@ -159,17 +165,8 @@ class EBusEnv(gym.Env):
     def _flag_bounds(self, info: dict) -> None:
         """Name the observations whose true value lies beyond the observation bounds (the
         observation holds the bound; ``info`` the true value), warning once per episode."""
-        clipped = []
-        for k, (name, unit, low, high) in _IN_INFO:
-            true = info[name]
-            if not low <= true <= high:
-                clipped.append(name)
-                if name not in self._warned:
-                    self._warned.add(name)
-                    gym.logger.warn(f"observation {k} ({name}) holds its bound: the true value "
-                                    f"is {true:.1f} {unit}, outside [{low:g}, {high:g}] "
-                                    f"(info['{name}'] has it).")
-        info["clipped_observations"] = clipped
+        info["clipped_observations"] = [name for name, beyond in
+                                        clipped_observations(info, self._warned).items() if beyond]
 
     def render(self):
         if self.render_mode is None:

@@ -11,11 +11,12 @@ import numpy as np
 
 from ebus_env import paths
 from ebus_env.config import read_yaml
-from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OUT, BusBatch
+from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, OUT, BusBatch
 from ebus_env.envs.climate import climate_of
 from ebus_env.envs.reward import TERMS, Reward
 from ebus_env.errors import ActionError, ConfigError
 from ebus_env.inputs import ENV_KEYS, check
+from ebus_env.units import with_unit
 
 CONFIG_DIR = paths.configs("env")
 SCORED = ("peak_rise_kw", "comfort_kh", "late_min", "reserve_pct_h", "service_lost_h")  # in info, with OUT
@@ -222,3 +223,26 @@ def batch_info(buses: BusBatch, values: np.ndarray, costs: np.ndarray) -> dict:
     (n, terms))."""
     return decision_info(buses.out.T.copy(), buses.quantities[:, -len(SCORED):].T.copy(),
                          costs.T, buses.breakdown_matrix_kwh().T, values.T, buses.energy_terms)
+
+
+IN_INFO = [(k, o) for k, o in enumerate(OBSERVATIONS) if o[0] in OUT]
+"""Observations whose true value ``info`` carries (from ``OUT``), checked against the bounds."""
+
+
+def clipped_observations(info: dict, warned: set[str]) -> dict[str, np.ndarray]:
+    """Whether each observation of ``IN_INFO`` holds its bound (its true value in ``info``, a
+    float or an array over the sub-envs, lies beyond it), a bool or a bool array per name;
+    warns once per name not yet in ``warned`` (and adds it)."""
+    flags = {}
+    for k, (name, unit, low, high) in IN_INFO:
+        true = np.asarray(info[name])
+        beyond = ~((true >= low) & (true <= high))  # NaN too
+        flags[name] = beyond
+        if name not in warned and beyond.any():
+            warned.add(name)
+            where = f" in sub-env {np.flatnonzero(beyond)[0]}" if true.ndim else ""
+            first = float(true[beyond][0]) if true.ndim else float(true)
+            gym.logger.warn(f"observation {k} ({name}) holds its bound{where}: the true value "
+                            f"is {first:.1f}{with_unit('', unit)}, outside [{low:g}, {high:g}] "
+                            f"(info['{name}'] has it).")
+    return flags

@@ -22,6 +22,7 @@ from ebus_env.envs.spec import (
     EnvConfig,
     batch_info,
     checked_actions,
+    clipped_observations,
     physical,
     reward_of,
     spaces,
@@ -36,7 +37,9 @@ class EBusVectorEnv(VectorEnv):
     Gymnasium's own vector envs; ``SAME_STEP`` puts the last observation and info of an
     ended episode in ``info["final_obs"]`` / ``info["final_info"]``, what stable-baselines3
     expects: see :mod:`ebus_env.envs.sb3`). ``info`` holds arrays (num_envs,) of the
-    single env's figures, ``info["reward_terms"]`` and ``info["breakdown_kwh"]`` dicts of them.
+    single env's figures, ``info["reward_terms"]`` and ``info["breakdown_kwh"]`` dicts of them,
+    ``info["clipped_observations"]`` a dict of bool arrays: the observations that hold their
+    bound (the single env's list of names, per sub-env; warned once per reset).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -61,6 +64,7 @@ class EBusVectorEnv(VectorEnv):
         self._rngs: list[np.random.Generator] = []
         self._ended = np.zeros(num_envs, bool)
         self._elapsed = np.zeros(num_envs, np.int64)
+        self._warned: set[str] = set()  # observations warned of as holding their bound
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         if seed is None or isinstance(seed, int):
@@ -76,6 +80,7 @@ class EBusVectorEnv(VectorEnv):
             self.buses.reset(b, self._rngs[b])
         self._ended[:] = False
         self._elapsed[:] = 0
+        self._warned = set()
         return self.buses.obs.copy(), {}
 
     def step(self, actions):
@@ -92,6 +97,8 @@ class EBusVectorEnv(VectorEnv):
         truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
         info = batch_info(buses, values, costs)
         info["depleted"] = depleted
+        # name -> (num_envs,) bool: the observation holds its bound, info has the true value
+        info["clipped_observations"] = clipped_observations(info, self._warned)
         obs = buses.obs.copy()
         if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
             was_ended = self._ended

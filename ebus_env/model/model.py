@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ebus_env.effects.base import Effect, Param, get_effect
+from ebus_env.effects.compile_errors import explain
 from ebus_env.errors import CompositionError, ConfigError, EbusError, unknown_name
 from ebus_env.model.generate import Composition, generate
 from ebus_env.model.kernels import compile_kernel, compile_lanes, python_kernel
@@ -355,7 +356,13 @@ class Model:
                                  f"differ between the buses: give at least "
                                  f"{sorted(differing_columns(params))}, or leave it out.")
             kernel = self.kernel(variant + "_lanes", varying)
-        run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
+        try:
+            run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
+        except Exception as exc:  # a user's effect numba cannot compile: say which and why
+            explained = explain(exc)
+            if explained is None:
+                raise
+            raise explained from exc
         return acc
 
     @staticmethod
