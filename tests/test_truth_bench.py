@@ -58,3 +58,18 @@ def test_truth_day_gets_no_wrong_verdict(source, case, tmp_path_factory):
         assert row["verdict"] == expected, (row["status"], row["why"])
     for name, (low, high) in row["interval"].items():
         assert low <= row["estimate"][name] <= high
+
+
+def test_a_part_of_the_bench_is_its_first_days():
+    """``--per-effect N --controls M`` runs the whole bench's first N days of each effect and
+    first M control days: the same days (same seeds), not a new draw."""
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    whole = bench.truth_cases("truthsim", smoke=False)
+    part = bench.truth_cases("truthsim", smoke=False, per_effect=2, controls=3)
+    effects = {c.hidden for c in whole if c.hidden is not None}
+    assert len(part) == 2 * len(effects) + 3
+    assert all(c in whole for c in part)
+    for hidden in effects | {None}:
+        first = [c for c in whole if c.hidden == hidden][:3 if hidden is None else 2]
+        assert [c for c in part if c.hidden == hidden] == first
