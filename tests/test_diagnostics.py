@@ -96,42 +96,44 @@ def test_attribution_supports_nothing_in_noise_or_when_a_parameter_explains_it()
     assert d.verdict is None and d.status == "parameter" and "aux.power_w" in d.why
 
 
-def _irls_reference(x, y, w, nonneg):
-    """The hand-written fit scipy replaced: Huber IRLS over an active-set NNLS."""
-    def nnls(a, b):
-        free = np.ones(a.shape[1], bool)
-        while True:
-            beta = np.zeros(a.shape[1])
-            beta[free] = np.linalg.lstsq(a[:, free], b, rcond=None)[0]
-            bad = np.where(nonneg & free & (beta < 0), beta, 0.0)
-            if not bad.any():
-                return beta
-            free[np.argmin(bad)] = False
+def _huber_reference(x, y, w, low, high):
+    """The same minimum by scipy's general solver, ``least_squares(loss="huber")`` (its rho is
+    Huber's loss scaled by f_scale^2), solved to 1e-12."""
+    from scipy.optimize import least_squares
 
     a, b = x * np.sqrt(w)[:, None], y * np.sqrt(w)
-    beta = nnls(a, b)
-    for _ in range(200):
-        u = np.sqrt(np.minimum(1.0, attribution.HUBER_C / np.maximum(np.abs(a @ beta - b),
-                                                                       1e-300)))
-        beta = nnls(a * u[:, None], b * u)
-    return beta
+    return least_squares(lambda beta: a @ beta - b, np.clip(np.zeros(x.shape[1]), low, high),
+                         jac=lambda beta: a, bounds=(low, high), loss="huber",
+                         f_scale=attribution.HUBER_C, x_scale="jac",
+                         xtol=1e-12, ftol=1e-12, gtol=1e-12).x
 
 
-def test_robust_fit_by_scipy_equals_the_huber_irls_it_replaced():
-    """Weighted Huber regression with sign constraints, outliers in y: scipy's least_squares
-    reaches the IRLS minimum (single-signature fits, whose NNLS the active set solved
-    exactly, and fits with free nuisance columns)."""
+def _huber_loss(x, y, w, beta):
+    return float(np.sum(attribution.huber(np.sqrt(w) * (y - x @ beta))))
+
+
+def test_robust_fit_reaches_the_huber_minimum():
+    """Weighted Huber regression with outliers in y: the reweighted fit reaches the minimum of
+    scipy's general solver, with an effect's column >= 0 and nuisance columns, nearly
+    collinear with it, held within +-1 (as in the attribution)."""
     rng = np.random.default_rng(4)
-    for _ in range(40):
-        n, k = int(rng.integers(30, 150)), int(rng.integers(1, 3))
+    for trial in range(60):
+        n, k = int(rng.integers(30, 150)), int(rng.integers(1, 4))
         x = rng.normal(size=(n, k)) * rng.uniform(100, 3000, k)
+        if k > 1 and trial % 2:
+            x[:, 1] = x[:, 0] * 0.9 + 0.1 * x[:, 1]  # a nuisance column like the effect's
         y = x @ rng.normal(size=k) + rng.normal(0, 200, n)
         y[rng.random(n) < 0.1] += 8000
         w = attribution.weights(rng.uniform(100, 600, n))
         nonneg = np.arange(k) == 0
-        ours, ref = attribution._fit(x, y, w, nonneg), _irls_reference(x, y, w, nonneg)
+        boxed = trial % 3 == 0
+        low = np.where(nonneg, 0.0, -1.0 if boxed else -np.inf)
+        high = np.where(nonneg, np.inf, 1.0 if boxed else np.inf)
+        ours = attribution._fit(x, y, w, nonneg, (low, high) if boxed else None)
+        ref = _huber_reference(x, y, w, low, high)
         np.testing.assert_allclose(ours, ref, rtol=1e-4, atol=1e-6)
-        assert ours[0] >= 0
+        assert _huber_loss(x, y, w, ours) <= _huber_loss(x, y, w, ref) * (1 + 1e-9)
+        assert np.all(ours >= low) and np.all(ours <= high)
 
 
 def test_held_out_blocks_alternate_and_keep_the_pack_temperature_running():
