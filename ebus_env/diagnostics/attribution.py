@@ -104,16 +104,17 @@ def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray,
     low, high = bounds or _bounds(nonneg)
     scale = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
     beta = lsq_linear(a, b, bounds=(low, high), method="bvls").x
-    if not np.any(np.abs(a @ beta - b) > HUBER_C):
+    r = np.abs(a @ beta - b)
+    if not np.any(r > HUBER_C):
         return beta  # no window in the linear part of the loss: least squares is the answer
     for _ in range(FIT_STEPS):
-        r = np.abs(a @ beta - b)
         v = np.sqrt(np.minimum(1.0, HUBER_C / np.maximum(r, 1e-300)))
         new = lsq_linear(a * v[:, None], b * v, bounds=(low, high), method="bvls").x
         moved = float(np.max(np.abs(new - beta) * scale))
         beta = new
         if moved <= FIT_TOL * (1.0 + float(np.linalg.norm(b))):
             break
+        r = np.abs(a @ beta - b)
     return beta
 
 
