@@ -222,7 +222,8 @@ class Decision(NamedTuple):
 
 
 def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np.ndarray,
-              folds: int = 5, nuisance: tuple[str, ...] = ()) -> Decision:
+              folds: int = 5, nuisance: tuple[str, ...] = (),
+              measurement_w: np.ndarray | None = None) -> Decision:
     """Score every candidate alone, select a sparse set, and decide the verdict.
 
     ``nuisance`` names parameter candidates fitted along with every effect: after a
@@ -231,10 +232,15 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
     moving-block bootstrap (:func:`block_draws`): the best effect is named only when it beats
     re-adjusting the nuisance parameters alone in ``CONFIDENCE`` of the draws, and the
     runner-up by ``MIN_MARGIN`` or in ``CONFIDENCE`` of the draws (see the module docstring);
-    a band of 5-95 % of its explained share goes with each effect."""
+    a band of 5-95 % of its explained share goes with each effect.
+
+    ``noise_w`` weighs the windows; ``measurement_w`` (default ``noise_w``), the log's own
+    standard error, is what the missing power must stand out of: the model's error on a
+    window's power is mostly a scale error that calibration takes up, not scatter."""
     y = missing_w[usable]
     w = weights(noise_w[usable])
-    significance = _significance(y, noise_w[usable])
+    significance = _significance(
+        y, (noise_w if measurement_w is None else measurement_w)[usable])
     by_name = {c.name: c for c in candidates}
     nuisance = tuple(n for n in nuisance if n in by_name)
     extra = np.column_stack([by_name[n].signature_w[usable] for n in nuisance]) \

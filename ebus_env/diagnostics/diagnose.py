@@ -218,7 +218,8 @@ class Residual:
     energy_j: np.ndarray
     base_power_w: np.ndarray
     missing_w: np.ndarray
-    noise_w: np.ndarray
+    noise_w: np.ndarray  # the measurement's and the model's error, residual.uncertainty_w
+    measurement_w: np.ndarray  # the measurement's standard error alone
     usable: np.ndarray
     issues: list[dict]
     excluded: int
@@ -248,7 +249,8 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
     excluded = int(np.sum(enough & ~usable))
     usable &= ~(windows.start_step * dt_s < START_UP_S)
     return Residual(model, dict(values), params, every, basis, window_s, windows, anchored,
-                    energy, base_power, missing, noise, usable, issues, excluded)
+                    energy, base_power, missing, residual.uncertainty_w(noise, base_power),
+                    noise, usable, issues, excluded)
 
 
 def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say) -> tuple[
@@ -306,7 +308,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     fits, the strength is implausible."""
     w = res.windows
     decision = attribution.attribute(res.missing_w, res.noise_w, candidates, res.usable,
-                                     nuisance=nuisance)
+                                     nuisance=nuisance, measurement_w=res.measurement_w)
     ranked, verdict, why, status = (decision.ranking, decision.verdict, decision.why,
                                     decision.status)
     by_name = {c.name: c for c in candidates}
