@@ -200,8 +200,8 @@ def simulate(
     gaps: Annotated[str, typer.Option(help="Gaps in --measured: error, split, hold, interpolate")]
     = "error",
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
-    no_unit_check: Annotated[bool, typer.Option(help="Skip the m/s-vs-km/h and SoC-unit checks")]
-    = False,
+    no_unit_check: Annotated[bool, typer.Option(
+        "--no-unit-check", help="Skip the m/s-vs-km/h and SoC-unit checks")] = False,
     dt_s: Annotated[float, typer.Option("--dt", help="Time step [s]")] = 0.1,
     out: Annotated[Path | None, typer.Option(help="Write the trace (.parquet or .csv)")] = None,
     plot: Annotated[Path | None, typer.Option(help="Plot speed, power, SoC, cabin (PNG)")] = None,
@@ -343,7 +343,8 @@ def calibrate(
     = None,
     gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
-    no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+    no_unit_check: Annotated[bool, typer.Option("--no-unit-check",
+                                                help="Skip the unit checks")] = False,
     sparse: Annotated[bool, typer.Option(
         help="The logs are sparse (speed, distance, SoC every few minutes)")] = False,
     sparse_cycle: Annotated[str, typer.Option(help="Cycle that fills sparse intervals")] = "sort2",
@@ -527,7 +528,8 @@ def diagnose(
     = None,
     gaps: Annotated[str, typer.Option(help="Gaps: error, split, hold, interpolate")] = "error",
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
-    no_unit_check: Annotated[bool, typer.Option(help="Skip the unit checks")] = False,
+    no_unit_check: Annotated[bool, typer.Option("--no-unit-check",
+                                                help="Skip the unit checks")] = False,
     set_: SetOpt = None,
 ):
     """Where the model fails against measurements, and which effect is missing.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from typer.testing import CliRunner
@@ -73,6 +74,22 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     assert code == 2 and "Duplicated times" in out and "row 1" in out
     code, out = invoke("simulate", "--set", "aero_drag.drag_coef=9")
     assert code == 2 and "outside its bounds" in out
+
+
+def test_unit_check_names_its_switch_and_the_switch_turns_it_off(tmp_path):
+    """A crawl at <= 20 km/h with gentle accelerations looks like m/s; the error names the
+    one switch that accepts it (a plain flag: there is no double negative to type)."""
+    t = np.arange(0.0, 600.0)
+    speed_kmh = np.clip(np.minimum(t % 200, 200 - t % 200) * 0.3, 0.0, 20.0)
+    log = tmp_path / "crawl.csv"
+    pd.DataFrame({"time_s": t, "speed_kmh": speed_kmh,
+                  "soc_pct": np.linspace(80.0, 79.5, len(t))}).to_csv(log, index=False)
+    code, out = invoke("simulate", "--measured", log)
+    assert code == 2 and "look like m/s" in out and "--no-unit-check" in out
+    code, out = invoke("simulate", "--measured", log, "--no-unit-check")
+    assert code == 0, out
+    code, out = invoke("simulate", "--measured", log, "--no-no-unit-check")
+    assert code == 2
 
 
 def test_effects_and_cycles_listings():
