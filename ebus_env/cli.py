@@ -27,6 +27,9 @@ SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", help="Override a parameter: effect.param=value (repeatable)")]
 OverlayOpt = Annotated[list[Path] | None, typer.Option(
     "--overlay", help="Bus-config overlay to merge, e.g. a calibration result")]
+StartOpt = Annotated[str | None, typer.Option(
+    "--start-time", help="Clock time of the log's first row, HH:MM, for a log without "
+                         "date-times (else 00:00)")]
 
 
 @dataclass(frozen=True)
@@ -52,12 +55,35 @@ class BusChoice:
 
 @dataclass(frozen=True)
 class LogHandling:
-    """How measured logs are read: ``--columns``, ``--gaps``, ``--fill``, ``--no-unit-check``."""
+    """How measured logs are read: ``--columns``, ``--gaps``, ``--fill``, ``--no-unit-check``,
+    ``--start-time``."""
 
     columns: str | None = None
     gaps: str = "error"
     fill: str = "error"
     check_units: bool = True
+    start_time: str | None = None
+
+    @property
+    def start_h(self) -> float | None:
+        return None if self.start_time is None else _clock_h(self.start_time)
+
+
+def _clock_h(text: str) -> float:
+    """``HH:MM`` or ``HH:MM:SS`` as hours after midnight."""
+    from ebus_env.errors import ConfigError
+
+    parts = text.split(":")
+    try:
+        if not 2 <= len(parts) <= 3:
+            raise ValueError
+        h, m, sec = (int(p) for p in parts + ["0"] * (3 - len(parts)))
+    except ValueError:
+        raise ConfigError(f"--start-time needs HH:MM (e.g. 07:30), got '{text}'.") from None
+    if not (0 <= h <= 23 and 0 <= m <= 59 and 0 <= sec <= 59):
+        raise ConfigError(f"--start-time {text} is not a time of day: give HH:MM with HH "
+                          "0-23 and MM 0-59.")
+    return h + m / 60 + sec / 3600
 
 
 def _console():
@@ -94,11 +120,12 @@ def _load_logs(paths, model, params, handling: LogHandling, console, notes=None)
 
     vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
         if model.has_effect("vehicle_body") else None
+    start_h = handling.start_h
     profiles = []
     for path in paths:
         log = load_log(path, model.dt_s, columns=handling.columns, gaps=handling.gaps,
                        fill=handling.fill, check_units=handling.check_units, max_speed_kmh=vmax,
-                       max_accel_mps2=4.0)
+                       max_accel_mps2=4.0, start_h=start_h)
         profiles += log.profiles
         if notes is not None:
             notes += log.report.changes
@@ -202,6 +229,7 @@ def simulate(
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option(
         "--no-unit-check", help="Skip the m/s-vs-km/h and SoC-unit checks")] = False,
+    start_time: StartOpt = None,
     dt_s: Annotated[float, typer.Option("--dt", help="Time step [s]")] = 0.1,
     out: Annotated[Path | None, typer.Option(help="Write the trace (.parquet or .csv)")] = None,
     plot: Annotated[Path | None, typer.Option(help="Plot speed, power, SoC, cabin (PNG)")] = None,
@@ -210,7 +238,8 @@ def simulate(
 ):
     """Run a bus through a cycle day or a measured log and print the energy table."""
     _run(lambda: _simulate(
-        BusChoice(bus, with_, without, overlay), LogHandling(columns, gaps, fill, not no_unit_check),
+        BusChoice(bus, with_, without, overlay),
+        LogHandling(columns, gaps, fill, not no_unit_check, start_time),
         cycle=cycle, measured=measured, hours=hours, mean_speed_kmh=mean_speed_kmh,
         ambient_degc=ambient_degc, soc_start_pct=soc_start_pct, load=load, set_=set_, dt_s=dt_s,
         out=out, plot=plot, json_path=json_path))
@@ -345,6 +374,7 @@ def calibrate(
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option("--no-unit-check",
                                                 help="Skip the unit checks")] = False,
+    start_time: StartOpt = None,
     sparse: Annotated[bool, typer.Option(
         help="The logs are sparse (speed, distance, SoC every few minutes)")] = False,
     sparse_cycle: Annotated[str, typer.Option(help="Cycle that fills sparse intervals")] = "sort2",
@@ -378,7 +408,7 @@ def calibrate(
             raise ConfigError("Give the measured log(s) to calibrate on, or --fleet FOLDER.")
         _calibrate(
             logs, BusChoice(bus, with_, without, overlay),
-            LogHandling(columns, gaps, fill, not no_unit_check), params=params, fix=fix,
+            LogHandling(columns, gaps, fill, not no_unit_check, start_time), params=params, fix=fix,
             range_=range_, windowed=windowed, validate=validate, seed=seed, population=population,
             iterations=iterations, categorical_load=categorical_load, config=config, sparse=sparse,
             sparse_cycle=sparse_cycle, out=out, json_path=json_path, plot=plot, history=history)
@@ -434,7 +464,8 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
 
         vmax = base[model.param_index("vehicle_body.max_speed_kmh")]
         loaded = [load_sparse_log(p, model.dt_s, cycle=sparse_cycle, columns=handling.columns,
-                                  max_speed_kmh=vmax) for p in [*logs, *(validate or [])]]
+                                  max_speed_kmh=vmax, start_h=handling.start_h)
+                  for p in [*logs, *(validate or [])]]
         for path, log in zip([*logs, *(validate or [])], loaded, strict=True):
             for line in log.report.changes:
                 console.print(f"[dim]sparse ({Path(path).name}):[/] {line}", highlight=False)
@@ -530,6 +561,7 @@ def diagnose(
     fill: Annotated[str, typer.Option(help="Missing values: error or interpolate")] = "error",
     no_unit_check: Annotated[bool, typer.Option("--no-unit-check",
                                                 help="Skip the unit checks")] = False,
+    start_time: StartOpt = None,
     set_: SetOpt = None,
 ):
     """Where the model fails against measurements, and which effect is missing.
@@ -537,7 +569,7 @@ def diagnose(
     Shows the error before and after adding each effect (--add), re-calibrated each time."""
     _run(lambda: _diagnose(
         logs, BusChoice(bus, with_, without, overlay),
-        LogHandling(columns, gaps, fill, not no_unit_check), calibrate=calibrate, add=add,
+        LogHandling(columns, gaps, fill, not no_unit_check, start_time), calibrate=calibrate, add=add,
         html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_))
 
 

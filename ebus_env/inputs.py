@@ -139,6 +139,9 @@ RANGES: dict[str, Range] = {r.name: r for r in (
           "calibrate --sparse.", warn_low=0.05, given="median step of a log's time"),
     Range("log_speed_kmh", "km/h", 0.0, 400.0, "Speeds are >= 0 and plausible.",
           given="log column `speed_kmh` (or `speed_mps` x 3.6)"),
+    Range("log_start_h", "h", 0.0, 24.0, "Time of day of a log's first row, for a log "
+          "without date-times (07:30 is 7.5 h); a log with date-times has its own clock.",
+          given="`--start-time HH:MM`; `load_log(start_h=)`"),
     Range("log_soc_pct", "%", 0.0, 100.0, "SoC in percent; a 0-1 column is `soc_frac`.",
           given="log column `soc_pct`"),
     Range("service_h", "h", 0.0, 24.0, "Service hours of an env episode.", open_low=True,

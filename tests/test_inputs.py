@@ -116,6 +116,29 @@ def test_a_log_without_soc_is_an_error_for_diagnose_and_a_note_for_simulate(tmp_
     assert "no clock time: its first row is taken as 00:00" in out
 
 
+def test_a_start_time_sets_the_clock_of_a_log_without_one(tmp_path):
+    path = _log_without_soc(tmp_path)
+    log = load_log(path, DT, start_h=7.5)
+    assert log.profiles[0].start_time_h == 7.5
+    time_of_day = log.profiles[0].channel("time_of_day_h")
+    assert time_of_day[0] == pytest.approx(7.5) and time_of_day[-1] == pytest.approx(7.75, abs=1e-3)
+    assert not any("00:00" in line for line in log.report.changes)
+    code, out = invoke("simulate", "--measured", path, "--start-time", "07:30")
+    assert code == 0 and "00:00" not in out, out
+    for bad, words in (("7h30", "needs HH:MM"), ("24:10", "not a time of day")):
+        code, out = invoke("simulate", "--measured", path, "--start-time", bad)
+        assert code == 2 and words in out, out
+    with pytest.raises(ConfigError, match="log_start_h"):
+        load_log(path, DT, start_h=25.0)
+    stamped = tmp_path / "stamped.csv"
+    pd.DataFrame({"timestamp": pd.date_range("2025-05-01 06:00", periods=60, freq="s"),
+                  "speed_kmh": 0.0, "soc_pct": 80.0}).to_csv(stamped, index=False)
+    assert load_log(stamped, DT).profiles[0].start_time_h == 6.0
+    with pytest.raises(LogError, match="first row at 06:00:00") as err:
+        load_log(stamped, DT, start_h=7.5)
+    assert "leave out the start time" in str(err.value)
+
+
 def _bus_file(tmp_path, edit) -> Path:
     data = yaml.safe_load((ROOT / "configs/bus/12m.yaml").read_text())
     edit(data)

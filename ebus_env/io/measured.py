@@ -42,7 +42,7 @@ from ebus_env import paths
 from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
 from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
-from ebus_env.inputs import MAX_STEPS, RANGES
+from ebus_env.inputs import MAX_STEPS, RANGES, check
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
@@ -188,8 +188,10 @@ def _nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True))
 
 
-def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarray, float]:
-    """Seconds from the first row, and the time of day of the first row [h]."""
+def _time(frame: pd.DataFrame, path: Path, report: LoadReport,
+          given_start_h: float | None = None) -> tuple[np.ndarray, float]:
+    """Seconds from the first row, and the time of day of the first row [h]: the log's own
+    clock, else ``given_start_h``, else 00:00 (with a note)."""
     start_h = None
     if "time_s" in frame.columns:
         t = _numeric(frame, "time_s", path)
@@ -206,15 +208,22 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport) -> tuple[np.ndarr
                                rows=bad, fix="use ISO 8601 date-times or seconds")
             first = stamps.iloc[0]
             start_h = first.hour + first.minute / 60 + first.second / 3600
+            if given_start_h is not None:
+                raise LogError(f"The log has date-times (its first row at {first:%H:%M:%S}), "
+                               "and a start time was given too", path=path,
+                               column="timestamp", fix="leave out the start time (--start-time)")
             t = ((stamps - first).dt.total_seconds()).to_numpy(float)
     else:
         raise LogError("No time column." + _close_column("time_s", frame.columns), path=path,
                        fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
-    if start_h is None:
+    if start_h is None and given_start_h is not None:
+        start_h = given_start_h
+    elif start_h is None:
         start_h = 0.0
         report.changes.append("the log has no clock time: its first row is taken as 00:00 "
-                              "(the time of day of passengers, chargers and diagnoses); give a "
-                              "'timestamp' column of date-times to set it")
+                              "(the time of day of passengers, chargers and diagnoses); give its "
+                              "start time (--start-time 07:30) or a 'timestamp' column of "
+                              "date-times")
     nan = np.flatnonzero(np.isnan(t))
     if nan.size:
         raise LogError("Missing times", path=path, column="time_s", rows=nan,
@@ -328,7 +337,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
              gaps: str = "error", max_gap_s: float | None = None, fill: str = "error",
              check_units: bool = True, grade_window_m: float = DEFAULT_WINDOW_M,
              max_speed_kmh: float | None = None, max_accel_mps2: float | None = None,
-             name: str | None = None) -> MeasuredLog:
+             name: str | None = None, start_h: float | None = None) -> MeasuredLog:
     """Read a measured log and bring it onto the simulation grid.
 
     Parameters
@@ -353,6 +362,9 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
         Smoothing window when grade comes from altitude [m].
     max_speed_kmh, max_accel_mps2
         Vehicle limits; samples beyond them are reported (the model cannot follow them).
+    start_h
+        Time of day of the first row [h] of a log without date-times (``time_s`` or seconds);
+        without it such a log starts at 00:00, which misplaces time-of-day effects.
     """
     if gaps not in GAP_POLICIES:
         raise ConfigError(f"gaps must be one of {GAP_POLICIES}, got '{gaps}'.")
@@ -361,7 +373,9 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     path, report, frame = open_log(path, columns)
     if len(frame) < 2:
         raise LogError("The log needs at least two rows", path=path)
-    t, start_h = _time(frame, path, report)
+    if start_h is not None:
+        check("log_start_h", start_h)
+    t, start_h = _time(frame, path, report, start_h)
 
     speed_col = "speed_kmh" if "speed_kmh" in frame.columns else (
         "speed_mps" if "speed_mps" in frame.columns else None)

@@ -25,18 +25,22 @@ import numpy as np
 
 from ebus_env.cycles import Cycle, load_cycle
 from ebus_env.errors import LogError
-from ebus_env.inputs import MAX_STEPS, RANGES
+from ebus_env.inputs import MAX_STEPS, RANGES, check
 from ebus_env.io.measured import MeasuredLog, _check_range, _numeric, _time, open_log
 from ebus_env.profile import Profile
 
 
 def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "sort2",
                     columns: dict | str | None = None, max_speed_kmh: float = 80.0,
-                    name: str | None = None) -> MeasuredLog:
+                    name: str | None = None, start_h: float | None = None) -> MeasuredLog:
     """Read a sparse log (``time_s``, ``distance_km`` cumulative, ``soc_pct``, optional
-    ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module docstring)."""
+    ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module docstring).
+    ``start_h``: the time of day of the first row of a log without date-times, as in
+    :func:`~ebus_env.io.measured.load_log`."""
     path, report, frame = open_log(path, columns)
-    t, start_h = _time(frame, path, report)
+    if start_h is not None:
+        check("log_start_h", start_h)
+    t, start_h = _time(frame, path, report, start_h)
     for required in ("distance_km", "soc_pct"):
         if required not in frame.columns:
             raise LogError(f"A sparse log needs the column '{required}'", path=path,
