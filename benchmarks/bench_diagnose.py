@@ -239,6 +239,12 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "top": d.ranking[0]["effect"] if d.ranking else None,
            "estimate": d.ranking[0]["parameters"] if d.verdict else {},
            "interval": d.ranking[0]["interval"] if d.verdict else {},
+           # the energy the named effect takes over the day, against the truth's: the one
+           # strength two structurally different models share (a UA or a derating SoC is
+           # defined by each model's own form)
+           "energy_kwh": d.ranking[0].get("energy_kwh") if d.verdict else None,
+           "energy_interval_kwh": d.ranking[0].get("energy_interval_kwh") if d.verdict else None,
+           "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
            / 3600.0, "why": d.why}
     expected = truth["expected_verdict"]
@@ -273,6 +279,7 @@ def figures(rows) -> dict:
     outside = [r for r in rows if r["expected"] == "outside_library"]
     right = [r for r in library if r["verdict"] == r["expected"]]
     shared = [(r, k) for r in right for k in r["estimate"] if k in r["truth"]]
+    energies = [r for r in right if r["energy_kwh"] is not None and r["truth_kwh"]]
     falls = {}
     for r in library:
         falls.setdefault(r["expected"], []).append(r.get("fall", float("nan")))
@@ -293,6 +300,10 @@ def figures(rows) -> dict:
                            <= BARS["strength"]], shared),
         "coverage": share([1 for r, k in shared if r["interval"][k][0] <= r["truth"][k]
                            <= r["interval"][k][1]], shared),
+        "energy": share([r for r in energies if abs(r["energy_kwh"] / r["truth_kwh"] - 1)
+                         <= BARS["strength"]], energies),
+        "energy_coverage": share([r for r in energies if r["energy_interval_kwh"][0]
+                                  <= r["truth_kwh"] <= r["energy_interval_kwh"][1]], energies),
         "time_s": (float(np.median(ten_h)) if ten_h else float("nan"), len(ten_h)),
         "cpu_s": (float(np.median(ten_h_cpu)) if ten_h else float("nan"), len(ten_h)),
     }
@@ -321,7 +332,10 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
             fall = f"; held-out NRMSE fall {100 * row['fall']:.0f} %" if "fall" in row else ""
             line(f"{row['source']}/{row['case']}", str(row["verdict"] or row["status"]),
                  f"expected {row['expected']}; top {row['top']}; clue {row['clue']}; "
-                 f"{row['estimate'] or ''} (truth {row['truth'] or '-'}){fall}; "
+                 f"{row['estimate'] or ''} (truth {row['truth'] or '-'})"
+                 + (f"; {row['energy_kwh']:.2f} kWh [{row['energy_interval_kwh'][0]:.2f}, "
+                    f"{row['energy_interval_kwh'][1]:.2f}] (truth {row['truth_kwh']:.2f})"
+                    if row["energy_kwh"] is not None else "") + f"{fall}; "
                  f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
     confusion(rows)
     f = figures(rows)
@@ -338,6 +352,10 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
          f"{f['strength'][1]} estimates")
     line("interval covers the truth", f"{100 * f['coverage'][0]:.0f} %",
          f"bar >= 80 %; {f['coverage'][1]} estimates")
+    line("the effect's energy within +-25 % (named right)", f"{100 * f['energy'][0]:.0f} %",
+         f"{f['energy'][1]} estimates")
+    line("  its interval covers the truth's", f"{100 * f['energy_coverage'][0]:.0f} %",
+         f"{f['energy_coverage'][1]} estimates")
     line("diagnose --calibrate per 10 h of log (median)", f"{f['time_s'][0]:.0f} s",
          f"bar <= 60 s on 2 cores; {workers} days at once on a shared machine")
     line("  the same, CPU time of the diagnosing process", f"{f['cpu_s'][0]:.0f} s",

@@ -16,7 +16,7 @@ aside with the reason.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -150,13 +150,28 @@ def parameter_candidates(model, params: np.ndarray, profiles, windows, basis, en
 
 @dataclass
 class Strength:
-    """The verdict's strength: value, 5-95 % bootstrap interval, and whether the fit wants a
-    value beyond a bound of its parameter (then the shape fits but the strength is
-    implausible)."""
+    """The verdict's strength: value, 5-95 % bootstrap interval, whether the fit wants a value
+    beyond a bound of its parameter (then the shape fits but the strength is implausible),
+    and the energy the effect takes over the log at that strength, with its interval."""
 
     value: dict  # {qualified name: value}, {} for an effect without a strength parameter
     interval: dict  # {qualified name: (low, high)}
     at_bound: bool = False  # the data want a strength beyond a bound
+    energy_kwh: float = float("nan")  # what the effect at that strength adds over the log
+    energy_interval_kwh: tuple[float, float] = (float("nan"), float("nan"))
+
+    def taking_in(self, other: Strength) -> Strength:
+        """This estimate, its interval widened to take in ``other``'s, the same fit on other
+        windows of the log (the held-out blocks). The bootstrap spreads only the sampling of
+        windows; where two estimates from disjoint windows disagree beyond it, the effect's or
+        the bus's form differs from the measured one's, and that sets the doubt."""
+        def union(a, b):
+            return (min(a[0], b[0]), max(a[1], b[1]))
+
+        interval = {name: union(band, other.interval[name]) if name in other.interval else band
+                    for name, band in self.interval.items()}
+        return replace(self, interval=interval, energy_interval_kwh=union(
+            self.energy_interval_kwh, other.energy_interval_kwh))
 
 
 AT_BOUND = 0.02  # of the range
@@ -223,15 +238,22 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
     cost = sse(fine_sig)
     best = float(np.clip(_vertex(fine, cost), low, high)[0])
     interval = (best, best)
+    grid, order = np.unique(np.concatenate([coarse, fine]), return_index=True)
+    signatures = np.vstack([candidate.signatures_w[first], fine_sig])[order]
     if draws is not None and len(draws):
-        grid, order = np.unique(np.concatenate([coarse, fine]), return_index=True)
-        signatures = np.vstack([candidate.signatures_w[first], fine_sig])[order]
         spread = _vertex(grid, sse(signatures, draws))
         interval = tuple(np.quantile(spread, [0.05, 0.95]).tolist())
         interval = (min(interval[0], best), max(interval[1], best))
     lo, hi = candidate.model.bounds[candidate.model.param_index(name)]
-    return Strength({name: best}, {name: interval},
-                    _beyond_bound(fine, cost[0], lo, hi))
+    # the effect's energy over the log at each strength: its extra power times the windows'
+    # hours (every window, usable or not), between grid points linear
+    energy_kwh = signatures @ windows.duration_h / 1e3
+    inside = energy_kwh[(grid > interval[0]) & (grid < interval[1])]
+    ends = np.interp(interval, grid, energy_kwh)
+    return Strength({name: best}, {name: interval}, _beyond_bound(fine, cost[0], lo, hi),
+                    float(np.interp(best, grid, energy_kwh)),
+                    (float(min(ends.min(), inside.min(initial=np.inf))),
+                     float(max(ends.max(), inside.max(initial=-np.inf)))))
 
 
 def _beyond_bound(x: np.ndarray, cost: np.ndarray, low: float, high: float) -> bool:

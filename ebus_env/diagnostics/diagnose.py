@@ -39,6 +39,8 @@ WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
 current x voltage is a power already."""
 WORST = 5
 CLUE_SIGMA = 3.0
+MIN_CHECK_WINDOWS = 2 * attribution.BOOT_BLOCK
+"""Held-out windows needed to check the strength estimate on them (two bootstrap blocks)."""
 START_UP_S = 120.0
 """Windows that start this soon after the start of a log are left out of the attribution:
 the log does not say when the driver switched the heater or other systems on."""
@@ -194,11 +196,16 @@ def _sentence(found, by_name, model) -> str:
     def shown(value):
         return f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
 
-    for name, value in found.estimate.items():
+    strength = found.strength
+    for name, value in strength.value.items():
         info = model.param_info(name)
-        low, high = found.interval[name]
+        low, high = strength.interval[name]
         text += (f"; {name.split('.', 1)[1]} about {with_unit(shown(value), info.unit)} "
                  f"(90 % interval {shown(low)} to {shown(high)})")
+    if strength.value:
+        low, high = strength.energy_interval_kwh
+        text += (f"; it adds about {strength.energy_kwh:.3g} kWh to the log's energy use "
+                 f"(90 % interval {low:.3g} to {high:.3g})")
     return text + "."
 
 
@@ -276,7 +283,7 @@ class Attributed:
     verdict: str | None
     why: str
     significance: float
-    estimate: dict
+    strength: Strength  # of the verdict: value, interval, energy
     verdict_w: np.ndarray | None
     ranking: list[dict]
     parameters: list[dict]
@@ -286,7 +293,10 @@ class Attributed:
     worst: list[dict]
     status: str  # see attribution.Decision, or "implausible"
     clue: str | None  # the operating mode where the power is missing
-    interval: dict  # 5-95 % bootstrap interval of the estimate
+
+    @property
+    def estimate(self) -> dict:
+        return self.strength.value
 
 
 def mode_clue(modes: list[dict]) -> str | None:
@@ -303,9 +313,9 @@ def mode_clue(modes: list[dict]) -> str | None:
 def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], blocks,
                       profiles) -> Attributed:
     """Which candidate explains the missing power, the verdict and its strength with a
-    bootstrap interval (fitted on the calibration blocks' windows), and where the power is
-    missing. A verdict whose strength sits at a bound of its parameter is withdrawn: the shape
-    fits, the strength is implausible."""
+    bootstrap interval (fitted on the calibration blocks' windows, widened to take in the same
+    fit on the held-out blocks'), and where the power is missing. A verdict whose strength sits
+    at a bound of its parameter is withdrawn: the shape fits, the strength is implausible."""
     w = res.windows
     decision = attribution.attribute(res.missing_w, res.noise_w, candidates, res.usable,
                                      nuisance=nuisance, measurement_w=res.measurement_w)
@@ -321,10 +331,17 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     if verdict is not None:
         best = by_name[verdict]
         moving = [by_name[n].signature_w for n in nuisance if n in by_name]
-        strength = estimate_strength(best, profiles, w, res.basis, res.energy_j,
-                                     res.base_power_w, res.missing_w, weight, fit,
-                                     np.column_stack(moving) if moving else None,
-                                     attribution.block_draws(int(fit.sum())))
+        nuisance_w = np.column_stack(moving) if moving else None
+
+        def strength_on(windows):
+            return estimate_strength(best, profiles, w, res.basis, res.energy_j,
+                                     res.base_power_w, res.missing_w, weight, windows,
+                                     nuisance_w, attribution.block_draws(int(windows.sum())))
+
+        strength = strength_on(fit)
+        held = res.usable & ~in_cal
+        if held.sum() >= MIN_CHECK_WINDOWS:
+            strength = strength.taking_in(strength_on(held))
         if strength.at_bound:
             (name, value), = strength.value.items()
             why = (f"the shape of {verdict} fits, the strength is implausible: {name} ends at "
@@ -340,7 +357,10 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     ranking = [{"effect": a.name, "kind": a.kind, "explained_fraction": a.explained,
                 "explained_band": list(a.band),
                 "parameters": strength.value if a.name == verdict else {},
-                "interval": strength.interval if a.name == verdict else {}}
+                "interval": strength.interval if a.name == verdict else {},
+                **({"energy_kwh": strength.energy_kwh,
+                    "energy_interval_kwh": list(strength.energy_interval_kwh)}
+                   if a.name == verdict and strength.value else {})}
                for a in ranked if a.kind != "parameter"]
     parameters = []
     for a in [a for a in ranked if a.kind == "parameter"][:10]:
@@ -354,8 +374,8 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                                res.usable)
     worst = _worst(res.anchored, w, res.missing_w, res.noise_w, res.usable)
     return Attributed(ranked, decision.selected, verdict, why, decision.significance,
-                      strength.value, verdict_w, ranking, parameters, found, modes, bins,
-                      worst, status, clue, strength.interval)
+                      strength, verdict_w, ranking, parameters, found, modes, bins, worst,
+                      status, clue)
 
 
 @dataclass

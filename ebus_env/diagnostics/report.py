@@ -34,8 +34,11 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                 ["effect", "kind", "explained %", "band %", "estimate (90 % interval)"],
                 [[r["effect"], r["kind"], _f(100 * r["explained_fraction"], 0),
                   "{:.0f} to {:.0f}".format(*(100 * b for b in r["explained_band"])),
-                  ", ".join(f"{k} = {v:.4g} ({r['interval'][k][0]:.4g} to "
-                            f"{r['interval'][k][1]:.4g})" for k, v in r["parameters"].items())]
+                  ", ".join([f"{k} = {v:.4g} ({r['interval'][k][0]:.4g} to "
+                             f"{r['interval'][k][1]:.4g})" for k, v in r["parameters"].items()]
+                            + (["energy {:.3g} kWh ({:.3g} to {:.3g})".format(
+                                r["energy_kwh"], *r["energy_interval_kwh"])]
+                               if "energy_kwh" in r else []))]
                  for r in d.ranking]))
     out.append(("Parameters of the model's effects", ["parameter", "explained %",
                                                       "change that fits", "value then"],
