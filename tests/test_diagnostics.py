@@ -17,7 +17,7 @@ import pytest
 from ebus_env.calibration import calibrate
 from ebus_env.config import load_bus
 from ebus_env.diagnostics import attribution, diagnose, hidden
-from ebus_env.diagnostics.candidates import Candidate
+from ebus_env.diagnostics.candidates import Candidate, Strength
 from ebus_env.diagnostics.ladder import improvement, split_blocks
 from ebus_env.diagnostics.residual import _slopes, correlation_time
 from ebus_env.io.measured import load_log
@@ -293,6 +293,22 @@ def test_json_report_holds_what_the_issue_asks(cabin_report):
     assert data["data_issues"] == []
     idle = next(m for m in data["modes"] if m["mode"] == "idle")
     assert idle["missing_kw"] > 10  # the heater runs while the bus stands with doors open
+    # the heater's energy at the estimated UA is the energy the model misses over the day
+    # (the modes' missing kWh: a different route, the residual's least-squares split)
+    missing_kwh = sum(m["missing_kwh"] for m in data["modes"])
+    low, high = top["energy_interval_kwh"]
+    assert top["energy_kwh"] == pytest.approx(missing_kwh, rel=0.02)
+    assert 0 < low <= top["energy_kwh"] <= high
+    assert f"adds about {top['energy_kwh']:.3g} kWh" in d.sentence
+
+
+def test_a_strength_interval_takes_in_the_estimate_on_other_windows():
+    calibration = Strength({"a.x": 1.0}, {"a.x": (0.9, 1.1)}, False, 10.0, (9.0, 11.0))
+    held_out = Strength({"a.x": 1.5}, {"a.x": (1.3, 1.7)}, True, 15.0, (13.0, 17.0))
+    both = calibration.taking_in(held_out)
+    assert both.value == {"a.x": 1.0} and both.energy_kwh == 10.0 and not both.at_bound
+    assert both.interval == {"a.x": (0.9, 1.7)} and both.energy_interval_kwh == (9.0, 17.0)
+    assert calibration.taking_in(Strength({}, {})).interval == calibration.interval
 
 
 def test_html_report_renders_in_headless_chromium(cabin_report):
