@@ -58,6 +58,9 @@ def test_truth_day_gets_no_wrong_verdict(source, case, tmp_path_factory):
         assert row["verdict"] == expected, (row["status"], row["why"])
     for name, (low, high) in row["interval"].items():
         assert low <= row["estimate"][name] <= high
+    if row["energy_kwh"] is not None:  # the named effect's energy over the day
+        low, high = row["energy_interval_kwh"]
+        assert low <= row["energy_kwh"] <= high
 
 
 def test_a_part_of_the_bench_is_its_first_days():
