@@ -239,7 +239,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "top": d.ranking[0]["effect"] if d.ranking else None,
            "estimate": d.ranking[0]["parameters"] if d.verdict else {},
            "interval": d.ranking[0]["interval"] if d.verdict else {},
-           # the energy the named effect takes over the day, against the truth's: the one
+           # the energy the named effect adds over the day, against the truth's: the one
            # strength two structurally different models share (a UA or a derating SoC is
            # defined by each model's own form)
            "energy_kwh": d.ranking[0].get("energy_kwh") if d.verdict else None,

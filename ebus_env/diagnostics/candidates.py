@@ -152,7 +152,7 @@ def parameter_candidates(model, params: np.ndarray, profiles, windows, basis, en
 class Strength:
     """The verdict's strength: value, 5-95 % bootstrap interval, whether the fit wants a value
     beyond a bound of its parameter (then the shape fits but the strength is implausible),
-    and the energy the effect takes over the log at that strength, with its interval."""
+    and the energy the effect adds to the log's use at that strength, with its interval."""
 
     value: dict  # {qualified name: value}, {} for an effect without a strength parameter
     interval: dict  # {qualified name: (low, high)}
