@@ -311,6 +311,38 @@ def test_a_strength_interval_takes_in_the_estimate_on_other_windows():
     assert calibration.taking_in(Strength({}, {})).interval == calibration.interval
 
 
+def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report_says_how_far(
+        tmp_path):
+    """A heated day whose cabin has no fans, no fresh air and a heat pump of COP 6: the
+    library's cabin at its lowest UA still draws about eight times its energy, so the shape
+    fits but no UA in range does, and the reason gives the library cabin's energy there."""
+    from dataclasses import replace
+
+    frugal = replace(hidden.case("cabin_heating"), name="frugal_cabin", truth={
+        "cabin_hvac.ua_w_per_k": 400.0, "cabin_hvac.fresh_air_kg_per_s": 0.0,
+        "cabin_hvac.door_air_m3_per_s": 0.0, "cabin_hvac.fan_power_w": 0.0,
+        "cabin_hvac.cop_heat_0c": 6.0, "cabin_hvac.heat_pump_min_ambient_degc": -30.0})
+    path = tmp_path / "frugal.csv.gz"
+    hidden.generate(frugal).to_csv(path, index=False)
+    profiles = load_log(path).profiles
+    d = diagnose(hidden.baseline_bus(frugal), profiles)
+    assert d.verdict is None and d.status == "implausible"
+    assert d.ranking[0]["effect"] == "cabin_hvac"
+    assert "cabin_hvac.ua_w_per_k ends at its lower bound, 10 (range 10 to 1500)" in d.why
+
+    def cabin_kwh(bus, values):
+        model = bus.build(profiles[0].dt_s)
+        params = model.param_vector(model.carry_over(values))
+        return sum(model.simulate(p, params).summary()["breakdown_kwh"]["cabin_hvac"]
+                   for p in profiles)
+
+    at_bound = cabin_kwh(hidden.baseline_bus(frugal).with_effect("cabin_hvac"),
+                         {"cabin_hvac.ua_w_per_k": 10.0})
+    reported = float(d.why.split("where it adds ")[1].split(" kWh")[0])
+    assert reported == pytest.approx(at_bound, rel=0.05)  # windows vs a straight run
+    assert at_bound > 5 * cabin_kwh(hidden.true_bus(frugal), {})
+
+
 def test_html_report_renders_in_headless_chromium(cabin_report):
     _, folder = cabin_report
     browser = shutil.which("chromium") or shutil.which("chromium-browser")

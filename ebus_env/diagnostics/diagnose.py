@@ -344,8 +344,14 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
             strength = strength.taking_in(strength_on(held))
         if strength.at_bound:
             (name, value), = strength.value.items()
+            low, high = best.model.bounds[best.model.param_index(name)]
+            # the effect's size at the bound tells a user how far its form (its other
+            # parameters) is from the bus's: a cabin whose fans alone outdraw the data
+            side = "lower" if value - low < high - value else "upper"
             why = (f"the shape of {verdict} fits, the strength is implausible: {name} ends at "
-                   f"its bound ({value:.4g})")
+                   f"its {side} bound, {value:.4g} (range {low:.4g} to {high:.4g}), where it adds "
+                   f"{strength.energy_kwh:.3g} kWh over the log (its other parameters, or its "
+                   "form, differ from this bus's)")
             status, verdict = "implausible", None
         else:
             # like with like: the missing power the fit predicts, the calibrated parameters

@@ -1,0 +1,94 @@
+"""The library's cabin against the truth sources' cabins on the truth bench's HVAC days.
+
+    python benchmarks/compare_cabins.py [--cache DIR] [--source fastsim] [--cop]
+    python benchmarks/compare_cabins.py --smoke   # CI: the bench's 4 h smoke days
+
+Per HVAC day: the HVAC energy the truth logged, and the energy of the library's cabin
+(``cabin_hvac`` at its configured values, added to the diagnosis's baseline bus, driven
+through the day's log) at the truth's envelope UA and at the lowest UA of its range. Where
+the library's cabin at its lowest UA still draws more than the truth's, the diagnosis can
+only answer "the shape fits, the strength is implausible": it is the cabin's other terms
+(fans, fresh air, occupants' heat, the heat pump's or air conditioner's COP) that differ.
+``--cop`` re-runs each FASTSim day for its HVAC's mean COP, thermal over electric energy
+(about a minute a day). Prints a table; no assertions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.bench_diagnose import (  # noqa: E402
+    BASELINE_WITHOUT,
+    SOURCES,
+    truth_cases,
+    truth_day,
+    truth_module,
+)
+from ebus_env.config import load_bus  # noqa: E402
+
+UA = "cabin_hvac.ua_w_per_k"
+HVAC_DAYS = ("cabin_heating", "cabin_cooling")
+
+
+def cabin_kwh(model, profiles, values: dict) -> float:
+    """The cabin's electric energy over the profiles at parameter ``values`` [kWh]."""
+    params = model.param_vector(model.carry_over(values))
+    return sum(model.simulate(p, params).summary()["breakdown_kwh"]["cabin_hvac"]
+               for p in profiles)
+
+
+def fastsim_cop(case) -> float:
+    """Thermal over electric energy of the FASTSim day's HVAC (the day re-run)."""
+    from benchmarks.truth import fastsim_source
+
+    _, _, clean = fastsim_source.generate_with_clean(case)
+    return float(np.abs(clean["hvac_thermal_w"]).sum() / clean["hvac_elec_w"].sum())
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="folder of generated truth days (made when missing)")
+    parser.add_argument("--source", choices=tuple(SOURCES), action="append")
+    parser.add_argument("--cop", action="store_true", help="FASTSim's HVAC COP (slow)")
+    parser.add_argument("--smoke", action="store_true",
+                        help="the bench's smoke days (1 per effect, 4 h) only")
+    args = parser.parse_args(argv)
+    folder = args.cache or Path(tempfile.mkdtemp(prefix="truth-days-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    bus = load_bus("12m", without=list(BASELINE_WITHOUT)).with_effect("cabin_hvac")
+    low = None
+    print(f"{'day':34s} {'truth kWh':>10s} {'truth UA':>9s} {'library at UA':>14s} "
+          f"{'at lowest UA':>13s}" + (f" {'COP':>5s}" if args.cop else ""))
+    for source in args.source or tuple(SOURCES):
+        module, why = truth_module(source)
+        if module is None:
+            print(why)
+            continue
+        for case in truth_cases(source, args.smoke):
+            if case.hidden not in HVAC_DAYS:
+                continue
+            profiles, truth = truth_day(source, case, folder)
+            model = bus.build(profiles[0].dt_s)
+            low = model.bounds[model.param_index(UA)][0]
+            ua = truth["strength"][UA]
+            row = (f"{source + '/' + case.case_id:34s} {truth['summary']['effect_kwh']:10.1f} "
+                   f"{ua:9.0f} {cabin_kwh(model, profiles, {UA: ua}):14.1f} "
+                   f"{cabin_kwh(model, profiles, {UA: low}):13.1f}")
+            if args.cop and source == "fastsim":
+                row += f" {fastsim_cop(case):5.2f}"
+            print(row, flush=True)
+    if low is not None:
+        print(f"(library: the 12 m bus's cabin at its configured values; lowest UA {low:g} W/K)")
+
+
+if __name__ == "__main__":
+    main()
