@@ -206,18 +206,29 @@ def truth_cases(source: str, smoke: bool, per_effect: int | None = None,
 
 
 def truth_day(source: str, case, folder: Path):
-    """A truth day's profiles and truth record, generated once and cached in ``folder``."""
+    """A truth day's profiles and truth record, generated once and cached in ``folder``. A
+    case cut shorter (the smoke run's last hours of a day) is cached under its own name, so
+    that the whole bench never reads a cut day from a shared folder, nor the reverse."""
     import json
 
-    log_path = folder / f"{source}-{case.case_id}.csv.gz"
-    truth_path = log_path.with_suffix("").with_suffix(".json")
+    def paths(stem):
+        return folder / f"{stem}.csv.gz", folder / f"{stem}.json"
+
+    log_path, truth_path = paths(f"{source}-{case.case_id}")
+    if truth_path.exists():
+        cached = json.loads(truth_path.read_text())
+        if (cached["start_clock_h"], cached["hours"]) != (case.start_clock_h, case.hours):
+            log_path, truth_path = paths(f"{source}-{case.case_id}-{case.hours:g}h-from-"
+                                         f"{case.start_clock_h:g}h")
     if not truth_path.exists():
         module, _ = truth_module(source)
         log, truth = module.generate(case)
         tmp = log_path.with_name(log_path.name + ".tmp")
         log.to_csv(tmp, index=False, compression="gzip")
         tmp.replace(log_path)
-        truth_path.write_text(json.dumps(truth, default=str))
+        tmp = truth_path.with_name(truth_path.name + ".tmp")  # the record last: the day is whole
+        tmp.write_text(json.dumps(truth, default=str))
+        tmp.replace(truth_path)
     return load_log(log_path).profiles, json.loads(truth_path.read_text())
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -76,3 +77,34 @@ def test_a_part_of_the_bench_is_its_first_days():
     for hidden in effects | {None}:
         first = [c for c in whole if c.hidden == hidden][:3 if hidden is None else 2]
         assert [c for c in part if c.hidden == hidden] == first
+
+
+def test_a_cut_day_and_its_whole_day_are_cached_apart(tmp_path, monkeypatch):
+    """The smoke run's cut days share their case ids with the whole bench's days: in one
+    cache folder each must still read back its own log, and neither is made twice."""
+    import numpy as np
+    import pandas as pd
+
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    made = []
+
+    class Source:  # a stand-in truth source: a standing bus, as long as the case
+        @staticmethod
+        def generate(case):
+            made.append(case.hours)
+            n = int(round(case.hours * 3600))
+            log = pd.DataFrame({"time_s": np.arange(n, dtype=float), "speed_kmh": 0.0,
+                                "soc_pct": 80.0})
+            return log, {"start_clock_h": case.start_clock_h, "hours": case.hours}
+
+    day = bench.truth_cases("truthsim", smoke=False)[0]
+    monkeypatch.setattr(bench, "truth_module", lambda source: (Source, ""))
+    whole = replace(day, start_clock_h=8.0, hours=0.1)
+    cut = replace(day, start_clock_h=8.05, hours=0.05)
+    for case in (whole, cut, whole, cut):
+        profiles, truth = bench.truth_day("truthsim", case, tmp_path)
+        assert (truth["hours"], truth["start_clock_h"]) == (case.hours, case.start_clock_h)
+        assert sum(p.duration_s for p in profiles) == pytest.approx(case.hours * 3600, abs=2)
+    assert made == [0.1, 0.05]
+    assert not list(tmp_path.glob("*.tmp"))
