@@ -9,8 +9,8 @@ through the day's log) at the truth's envelope UA and at the lowest UA of its ra
 the library's cabin at its lowest UA still draws more than the truth's, the diagnosis can
 only answer "the shape fits, the strength is implausible": it is the cabin's other terms
 (fans, fresh air, occupants' heat, the heat pump's or air conditioner's COP) that differ.
-``--cop`` re-runs each FASTSim day for its HVAC's mean COP, thermal over electric energy
-(about a minute a day). Prints a table; no assertions.
+``--cop`` re-runs each FASTSim day for its HVAC's mean COP, thermal over electric energy.
+Prints a table; no assertions.
 """
 
 from __future__ import annotations
