@@ -172,6 +172,7 @@ truth day may hide (the slot effects that may be hidden, regen_soc_limit and amb
 are refinements the 12 m bus does not have, and aux_schedule is not on it)."""
 SOURCES = {"truthsim": "benchmarks.truth.cases", "fastsim": "benchmarks.truth.fastsim_source"}
 SMOKE_HOURS = 4.0
+DAYS_CACHE = Path(tempfile.gettempdir()) / "ebus-truth-days"  # the generated days, by default
 BARS = {"top1": 0.90, "false_alarms": 0.05, "outside": 0.80, "fall": 0.50, "strength": 0.25,
         "coverage": 0.80, "time_s": 60.0}
 
@@ -392,7 +393,7 @@ def main() -> None:
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw"))
     if args.out_of_family:
-        cache = args.cache or Path(tempfile.gettempdir()) / "ebus-truth-days"
+        cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls)

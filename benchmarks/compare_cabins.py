@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.bench_diagnose import (  # noqa: E402
     BASELINE_WITHOUT,
+    DAYS_CACHE,
     SOURCES,
     truth_cases,
     truth_day,
@@ -56,13 +56,14 @@ def fastsim_cop(case) -> float:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, default=None,
-                        help="folder of generated truth days (made when missing)")
+                        help="folder of generated truth days (made when missing; by default "
+                             "the bench's)")
     parser.add_argument("--source", choices=tuple(SOURCES), action="append")
     parser.add_argument("--cop", action="store_true", help="FASTSim's HVAC COP (slow)")
     parser.add_argument("--smoke", action="store_true",
                         help="the bench's smoke days (1 per effect, 4 h) only")
     args = parser.parse_args(argv)
-    folder = args.cache or Path(tempfile.mkdtemp(prefix="truth-days-"))
+    folder = args.cache or DAYS_CACHE
     folder.mkdir(parents=True, exist_ok=True)
     bus = load_bus("12m", without=list(BASELINE_WITHOUT)).with_effect("cabin_hvac")
     low = None
