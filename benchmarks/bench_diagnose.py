@@ -3,14 +3,16 @@
     python benchmarks/bench_diagnose.py            # full run (several minutes)
     python benchmarks/bench_diagnose.py --smoke    # CI: one case, same code paths
     python benchmarks/bench_diagnose.py --out-of-family [--smoke] [--per-effect N]   # truth bench
+    python benchmarks/bench_diagnose.py --out-of-family --current-voltage   # ... on BMS logs
 
 * Out of family (``--out-of-family``): service days made by simulators that are not this
   model (``benchmarks/truth``: an independent simulator, and FASTSim 3 where installed), one
   hidden effect per day, base parameters drawn per day. Each day is diagnosed, calibrated, on
   the 12 m bus without the effects that may be hidden (``BASELINE_WITHOUT``); then the right
-  effect is added and the bus re-calibrated (the error ladder). Prints the confusion matrix
-  (true effect x verdict) and the figures against their bars. ``--smoke``: 1 day per effect
-  and 3 controls per source, 4 h days.
+  effect (the library's, or for a load the library lacks the user's file
+  ``benchmarks/user_effects.py``) is added and the bus re-calibrated (the error ladder).
+  Prints the confusion matrix (true effect x verdict) and the figures against their bars.
+  ``--smoke``: 1 day per effect and 3 controls per source, 4 h days.
 
 * Speed: ``ebus diagnose`` on a 13.5 h 1 Hz log (the cabin-heating case of
   ``ebus_env.diagnostics.hidden`` stretched to 13.5 h), without and with ``--calibrate``,
@@ -46,6 +48,11 @@ from ebus_env.diagnostics.ladder import improvement  # noqa: E402
 from ebus_env.io.measured import load_log  # noqa: E402
 
 BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
+USER_EFFECTS = {hidden: f"{Path(__file__).with_name('user_effects.py')}:{hidden_name}"
+                for hidden, hidden_name in (("battery_chiller", "pack_chiller"),
+                                            ("air_compressor", "air_compressor"))}
+"""For each load the library does not have, the effect a user writes for it
+(``benchmarks/user_effects.py``): what the error ladder adds on those days."""
 
 
 def line(what: str, value: str, note: str = "") -> None:
@@ -206,14 +213,17 @@ def truth_cases(source: str, smoke: bool, per_effect: int | None = None,
                     hours=min(c.hours, SMOKE_HOURS)) for c in module.cases(1, 3)]
 
 
-def truth_day(source: str, case, folder: Path):
+def truth_day(source: str, case, folder: Path, current_voltage: bool = False):
     """A truth day's profiles and truth record, generated once and cached in ``folder``. A
     case cut shorter (the smoke run's last hours of a day) is cached under its own name, so
-    that the whole bench never reads a cut day from a shared folder, nor the reverse."""
+    that the whole bench never reads a cut day from a shared folder, nor the reverse; so is
+    a log with the pack's current and voltage (``current_voltage``, the truth simulator's)."""
     import json
 
+    iv = "-iv" if current_voltage else ""
+
     def paths(stem):
-        return folder / f"{stem}.csv.gz", folder / f"{stem}.json"
+        return folder / f"{stem}{iv}.csv.gz", folder / f"{stem}{iv}.json"
 
     log_path, truth_path = paths(f"{source}-{case.case_id}")
     if truth_path.exists():
@@ -223,7 +233,8 @@ def truth_day(source: str, case, folder: Path):
                                          f"{case.start_clock_h:g}h")
     if not truth_path.exists():
         module, _ = truth_module(source)
-        log, truth = module.generate(case)
+        log, truth = (module.generate(case, current_voltage=True) if current_voltage
+                      else module.generate(case))
         tmp = log_path.with_name(log_path.name + ".tmp")
         log.to_csv(tmp, index=False, compression="gzip")
         tmp.replace(log_path)
@@ -238,8 +249,8 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     re-calibrate (worker of the pool)."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
-    source, case, folder = job
-    profiles, truth = truth_day(source, case, Path(folder))
+    source, case, folder, *current_voltage = job
+    profiles, truth = truth_day(source, case, Path(folder), *current_voltage)
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     t0, cpu0 = time.perf_counter(), time.process_time()
     d = diagnose(bus, profiles, calibrate=True)
@@ -260,11 +271,15 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
            / 3600.0, "why": d.why}
     expected = truth["expected_verdict"]
-    if ladder and expected not in (None, "outside_library"):
-        rungs = error_ladder(bus, profiles, [expected], profiles[0].dt_s, first=d.ladder[0],
-                             blocks=split_blocks(profiles))
+    # the right effect: the library's, or for a load it lacks the user's own file
+    row["added"] = USER_EFFECTS.get(case.hidden) if expected == "outside_library" else expected
+    if ladder and row["added"]:
+        rungs = error_ladder(bus, profiles, [row["added"]], profiles[0].dt_s,
+                             first=d.ladder[0], blocks=split_blocks(profiles))
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
         row["fall"] = improvement(rungs)
+        row["added_values"] = {k: v for k, v in rungs[-1].values.items()
+                               if k.split(".")[0] == rungs[-1].effects[-1]}
     return row
 
 
@@ -293,8 +308,10 @@ def figures(rows) -> dict:
     shared = [(r, k) for r in right for k in r["estimate"] if k in r["truth"]]
     energies = [r for r in right if r["energy_kwh"] is not None and r["truth_kwh"]]
     falls = {}
-    for r in library:
-        falls.setdefault(r["expected"], []).append(r.get("fall", float("nan")))
+    for r in library + outside:
+        label = (f"{r['added'].split(':')[-1]} (user's file)"
+                 if r["expected"] == "outside_library" else r["expected"])
+        falls.setdefault(label, []).append(r.get("fall", float("nan")))
     ten_h = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     ten_h_cpu = [r["cpu_s"] * 10.0 / r["hours"] for r in rows]
 
@@ -323,19 +340,23 @@ def figures(rows) -> dict:
 
 def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   sources: tuple[str, ...] = tuple(SOURCES), per_effect: int | None = None,
-                  controls: int | None = None) -> None:
+                  controls: int | None = None, current_voltage: bool = False) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
     print("\nOut-of-family truth days (baseline: 12m --without " + ",".join(BASELINE_WITHOUT)
-          + " --calibrate)")
+          + " --calibrate)" + (", logs with the pack's current and voltage"
+                               if current_voltage else ""))
     jobs = []
     for source in sources:
         module, why = truth_module(source)
         if module is None:
             print(f"  {why}: skipped")
             continue
-        jobs += [(source, c, str(folder))
+        if current_voltage and source != "truthsim":
+            print(f"  {source}: its logs have no pack current (SoC only): skipped")
+            continue
+        jobs += [(source, c, str(folder), current_voltage)
                  for c in truth_cases(source, smoke, per_effect, controls)]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
         rows = []
@@ -347,7 +368,9 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                  f"{row['estimate'] or ''} (truth {row['truth'] or '-'})"
                  + (f"; {row['energy_kwh']:.2f} kWh [{row['energy_interval_kwh'][0]:.2f}, "
                     f"{row['energy_interval_kwh'][1]:.2f}] (truth {row['truth_kwh']:.2f})"
-                    if row["energy_kwh"] is not None else "") + f"{fall}; "
+                    if row["energy_kwh"] is not None else "") + f"{fall}"
+                 + (f" (+ user's {row['added_values']})" if row["expected"] == "outside_library"
+                    and "added_values" in row else "") + "; "
                  f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
     confusion(rows)
     f = figures(rows)
@@ -390,13 +413,16 @@ def main() -> None:
                         help="out of family: only the first N control days")
     parser.add_argument("--source", choices=tuple(SOURCES), action="append",
                         help="truth sources to run (repeatable; default all)")
+    parser.add_argument("--current-voltage", action="store_true",
+                        help="out of family: logs with the pack's current and voltage too (a "
+                        "BMS log; the truth simulator's days)")
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw"))
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
-                      args.per_effect, args.controls)
+                      args.per_effect, args.controls, args.current_voltage)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

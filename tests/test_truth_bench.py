@@ -108,3 +108,40 @@ def test_a_cut_day_and_its_whole_day_are_cached_apart(tmp_path, monkeypatch):
         assert sum(p.duration_s for p in profiles) == pytest.approx(case.hours * 3600, abs=2)
     assert made == [0.1, 0.05]
     assert not list(tmp_path.glob("*.tmp"))
+
+
+@pytest.mark.slow
+def test_the_users_effects_for_the_outside_loads_draw_what_they_say():
+    """The effects a user writes for the bench's loads outside the library
+    (``benchmarks/user_effects.py``), run in the compiled model: the chiller draws its power
+    exactly while on a charger, and the compressor runs at its power for the run time that
+    open doors, braking and leaks owe it (what it still owes at the end excepted)."""
+    import numpy as np
+
+    from ebus_env import load_effects_file
+    from ebus_env.config import load_bus
+    from ebus_env.cycles import service_day
+
+    user = load_effects_file(ROOT / "benchmarks" / "user_effects.py")
+    bus = load_bus("12m")
+    day = service_day("sort2", 1.0, 0.1, replace(bus.service, layover_every_min=20.0))
+    standing = (day.channels["speed_ref_mps"] < 0.01) & (day.channels["charger_connected"] < 0.5)
+    day = day.with_channels(door_open=standing.astype(float))
+    on_charger = day.channels["charger_connected"] >= 0.5
+    assert on_charger.any() and standing.any()
+
+    chiller = bus.with_effect(user.pack_chiller).build(0.1).simulate(
+        day, {"pack_chiller.power_w": 6000.0})
+    assert np.array_equal(chiller.trace("pack_chiller_w"), np.where(on_charger, 6000.0, 0.0))
+
+    params = {"air_compressor.power_w": 5000.0, "air_compressor.run_per_open_s": 1.0,
+              "air_compressor.run_per_braked_mps": 2.0, "air_compressor.leak_duty": 0.02}
+    run = bus.with_effect(user.air_compressor).build(0.1).simulate(day, params)
+    power_w, speed = run.trace("air_compressor_w"), run.trace("speed_mps")
+    assert set(np.unique(power_w)) == {0.0, 5000.0}
+    braked_mps = np.maximum(speed[:-1] - speed[1:], 0.0).sum()
+    owed_s = (1.0 * day.channels["door_open"].sum() * 0.1 + 2.0 * braked_mps
+              + 0.02 * day.duration_s)
+    ran_s = (power_w > 0).sum() * 0.1
+    assert braked_mps > 10.0  # the day brakes: this term is tested
+    assert ran_s == pytest.approx(owed_s - run.trace("air_debt_s")[-1], abs=2.0)
