@@ -182,6 +182,24 @@ def test_degraded_log_is_one_hertz_and_quantised(hilly_day):
     assert np.all(np.diff(rel["time_s"]) == 1.0)
 
 
+def test_a_bms_log_adds_current_and_voltage_and_leaves_the_rest_unchanged(hilly_day):
+    """The pack's current and voltage, degraded like a Hall sensor's and a voltage
+    divider's, are drawn after everything else: the other columns are the SoC-only log's."""
+    _, _, tr = hilly_day
+    clean = tr[["time_s", "clock_h", "speed_mps", "soc_frac", "ambient_degc", "charging",
+                "charger_kw", "door_open", "battery_current_a", "battery_voltage_v"]].copy()
+    clean.attrs["date"] = "2025-05-01"
+    soc_only = degrade(clean, np.random.default_rng(3))
+    bms = degrade(clean, np.random.default_rng(3), current_voltage=True)
+    pd.testing.assert_frame_equal(bms[soc_only.columns], soc_only)
+    current, true_a = bms["battery_current_a"].to_numpy(), tr["battery_current_a"].to_numpy()
+    gain, offset = np.polyfit(true_a, current, 1)  # the sensor's error, back from the log
+    assert abs(gain - 1.0) <= 0.0105 and abs(offset) <= 0.55
+    assert 0.3 < np.std(current - (gain * true_a + offset)) < 0.7  # 0.5 A rms and 0.1 A steps
+    volts = bms["battery_voltage_v"].to_numpy() / tr["battery_voltage_v"].to_numpy()
+    assert np.abs(volts - 1.0).max() < 0.005
+
+
 def test_a_short_case_is_byte_reproducible():
     case = dataclasses.replace(truth_cases.cases(1, 0, effects=("passenger_mass",))[0],
                                hours=0.4)

@@ -191,8 +191,9 @@ def _used_j(trace: pd.DataFrame) -> float:
                  + end["e_battery_loss_j"])
 
 
-def generate(case: Case) -> tuple[pd.DataFrame, dict]:
-    """The degraded log and the truth record of one case.
+def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, dict]:
+    """The degraded log and the truth record of one case; ``current_voltage``: the log has
+    the pack's current and voltage too (a BMS log), the rest of it unchanged.
 
     The truth record holds ``case_id, source, hidden, expected_verdict`` (the library effect
     the diagnosis should name; None for control days, ``"outside_library"`` for loads the
@@ -232,9 +233,12 @@ def generate(case: Case) -> tuple[pd.DataFrame, dict]:
         logged.append("altitude_m")
     if case.hidden == "passenger_mass":
         logged.append("passengers")
+    if current_voltage:
+        logged += ["battery_current_a", "battery_voltage_v"]
     clean = trace[logged].copy()
     clean.attrs.update(trace.attrs)
-    log = degrade(clean, np.random.default_rng(log_ss), relative_time=case.relative_time)
+    log = degrade(clean, np.random.default_rng(log_ss), relative_time=case.relative_time,
+                  current_voltage=current_voltage)
 
     mode = modes(trace)
     hidden_j = float(trace["e_hidden_j"].iloc[-1])

@@ -25,7 +25,11 @@ Degradations, each drawn per day from ``rng``:
 * passengers: automatic passenger counters with a per-day scale error (+-8 %) and a count
   error of about one passenger, rounded, never below zero;
 * time: ``timestamp`` (``YYYY-MM-DD HH:MM:SS``) from the clock, or only ``time_s`` from 0
-  with ``relative_time=True`` (then nothing in the log tells the clock time).
+  with ``relative_time=True`` (then nothing in the log tells the clock time);
+* pack current and voltage (``current_voltage=True``): a Hall current sensor with a gain
+  error of up to +-1 %, an offset of up to +-0.5 A and 0.5 A rms noise, in 0.1 A; the pack
+  voltage with a gain error of up to +-0.3 % and 0.2 V rms noise, in 0.1 V. Drawn after every
+  other degradation, so the rest of a log is the same with and without them.
 """
 
 from __future__ import annotations
@@ -111,6 +115,10 @@ def degrade(clean: pd.DataFrame, rng: np.random.Generator, *, relative_time: boo
         else:
             log[col] = np.round(held(col).astype(float), 1)
     if current_voltage:
-        log["battery_current_a"] = np.round(at("battery_current_a") + rng.normal(0.0, 0.5, n), 1)
-        log["battery_voltage_v"] = np.round(at("battery_voltage_v") + rng.normal(0.0, 0.2, n), 1)
+        current = at("battery_current_a") * (1.0 + rng.uniform(-0.01, 0.01)) \
+            + rng.uniform(-0.5, 0.5) + rng.normal(0.0, 0.5, n)
+        voltage = at("battery_voltage_v") * (1.0 + rng.uniform(-0.003, 0.003)) \
+            + rng.normal(0.0, 0.2, n)
+        log["battery_current_a"] = np.round(current, 1)
+        log["battery_voltage_v"] = np.round(voltage, 1)
     return pd.DataFrame(log)
