@@ -409,3 +409,34 @@ def test_the_explained_line_is_the_fit_with_the_calibrated_parameters_moving_bac
     top = next(a for a in d.ranking if a.name == "heat")
     assert np.sqrt(np.mean((top.scale * heat - y) ** 2)) > 5000  # the effect alone: kW off
     assert np.sqrt(np.mean((top.fit_w - y) ** 2)) < 300  # the fit: within the noise
+
+
+@pytest.mark.slow
+def test_on_a_bms_log_the_calibration_fits_the_buss_brake_blending(tmp_path):
+    """A bus whose motor takes 70 % of the braking force (the library's 12 m bus: all of it),
+    nothing hidden. With the pack's current and voltage logged, the calibration frees the
+    blending share and moves it most of the way there (it fits SoC, where the share trades
+    off with the regen cutoff speed), and no effect is named; on the same day's SoC log the
+    share keeps its configured value (SoC cannot tell it from a regen limit at high SoC)."""
+    from dataclasses import replace
+
+    from ebus_env.diagnostics.ladder import nuisance_ranges
+    from ebus_env.diagnostics.residual import POWER_BASIS
+    from ebus_env.synthetic import synthetic_log
+
+    case = replace(hidden.case("control"), truth={"regen_cutoff.max_share": 0.7})
+    profile, _ = hidden.day_profile(case)
+    frame = synthetic_log(hidden.true_bus(case).build(hidden.DT_S), profile,
+                          soc_start=case.soc_start, period_s=1.0, soc_step_pct=0.1,
+                          soc_noise_pct=0.02, seed=1)
+    frame.to_csv(tmp_path / "bms.csv", index=False)
+    d = diagnose(hidden.baseline_bus(case), load_log(tmp_path / "bms.csv").profiles,
+                 calibrate=True)
+    assert d.basis == POWER_BASIS
+    assert d.calibration["params"]["regen_cutoff.max_share"] == pytest.approx(0.7, abs=0.1)
+    assert d.verdict is None, d.why
+    frame.drop(columns=["battery_current_a", "battery_voltage_v"]).to_csv(
+        tmp_path / "soc.csv", index=False)
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    assert "regen_cutoff.max_share" not in nuisance_ranges(
+        model, load_log(tmp_path / "soc.csv").profiles)

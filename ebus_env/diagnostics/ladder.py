@@ -5,9 +5,10 @@ hours); even blocks calibrate, odd blocks are held out. The model runs through t
 (a pack's temperature, a cabin's, carry on), but its SoC restarts from the measured one at
 each block, so a held-out block tests the model, not the error it carried in. Rung 0 is the
 model as given, calibrated; each further rung adds one effect and calibrates again, with the
-paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`) and the new effects' strength
-parameters free together, starting from the rung before (and the diagnosis's estimate of the
-effect's strength, when it has one).
+paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`; :data:`RESOLVED_BY_POWER`
+too on logs of battery power) and the new effects' strength parameters free together,
+starting from the rung before (and the diagnosis's estimate of the effect's strength, when it
+has one).
 """
 
 from __future__ import annotations
@@ -34,6 +35,16 @@ auxiliary base load, drivetrain efficiency, pack capacity and resistance), with 
 calibration searches as factors of the configured value (within the declared bounds): wide
 enough for a fleet's spread (the pack's, which the charging events pin down, also for another
 pack than the configured one), narrow enough that they cannot stand in for a missing effect."""
+RESOLVED_BY_POWER = {
+    "regen_cutoff.max_share": (0.5, 1.0),
+}
+"""Bus-to-bus parameters that a log of battery current and voltage resolves and a SoC log does
+not, freed with :data:`NUISANCE` when every profile has that power: the share of the braking
+force the motor takes (each bus's brake blending). Measured power shows every braking window
+to a few per cent, and a share left at its configured value leaves a braking-shaped residual
+that the regen limit at high SoC takes for itself (it was named so on control days of the
+independent truth simulator, docs/validation.md); on a SoC log the share and such a limit
+cannot be told apart, and the share keeps its configured value."""
 BLOCK_S = 3600.0
 MIN_BLOCKS = 4
 SCAN = 11
@@ -90,11 +101,18 @@ class Rung:
                 "held_out": {k: float(self.held_out[k]) for k in pick}}
 
 
-def nuisance_ranges(model) -> dict[str, tuple[float, float]]:
-    """The :data:`NUISANCE` parameters the model has, with their search ranges."""
+def nuisance_ranges(model, profiles=()) -> dict[str, tuple[float, float]]:
+    """The :data:`NUISANCE` parameters the model has, and :data:`RESOLVED_BY_POWER` when
+    every one of ``profiles`` logs battery current and voltage, with their search ranges."""
+    from ebus_env.diagnostics.residual import has_power
+
+    nuisance = dict(NUISANCE)
+    if profiles and all(map(has_power, profiles)):
+        nuisance.update(RESOLVED_BY_POWER)
     out = {}
-    for name, (low, high) in NUISANCE.items():
-        if name not in model.param_names:
+    for name, (low, high) in nuisance.items():
+        name = model.equivalent(name)  # a refinement in the slot keeps the parameter
+        if name is None:
             continue
         value = model.params[model.param_index(name)]
         lo, hi = model.bounds[model.param_index(name)]
@@ -133,12 +151,12 @@ def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, h
                    model=None) -> Rung:
     """Calibrate ``bus`` (with ``added`` effects already in it) on the calibration blocks of
     ``profiles``: by default the paper's parameters, the bus-to-bus ones (:data:`NUISANCE`,
-    in their ranges) and the added effects' strength parameters are free together.
-    The search starts from ``start`` (values by name) and from the bus's configured values,
-    each with the last added effect's strength scanned (:func:`strength_scan`). ``model`` is
-    the bus's model when already built."""
+    and :data:`RESOLVED_BY_POWER` on logs of battery power, in their ranges) and the added
+    effects' strength parameters are free together. The search starts from ``start`` (values
+    by name) and from the bus's configured values, each with the last added effect's strength
+    scanned (:func:`strength_scan`). ``model`` is the bus's model when already built."""
     model = model or bus.build(dt_s)
-    ranges = nuisance_ranges(model)
+    ranges = nuisance_ranges(model, profiles)
     if free is None:
         free = paper_params(model) + list(ranges)
         for eff in added:
