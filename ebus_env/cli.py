@@ -552,6 +552,9 @@ def diagnose(
     = None,
     window_s: Annotated[float | None, typer.Option(
         help="Window length [s] (default: 300 from SoC, 60 from current x voltage)")] = None,
+    soc_only: Annotated[bool, typer.Option(
+        "--soc-only", help="Diagnose from SoC alone where the log has battery current and "
+        "voltage too (see docs/validation.md: run both)")] = False,
     config: Annotated[str | None, typer.Option(
         help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml)")] = None,
     seed: Annotated[int, typer.Option(help="Random seed of iSOPT")] = 0,
@@ -570,11 +573,12 @@ def diagnose(
     _run(lambda: _diagnose(
         logs, BusChoice(bus, with_, without, overlay),
         LogHandling(columns, gaps, fill, not no_unit_check, start_time), calibrate=calibrate, add=add,
-        html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_))
+        html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_,
+        soc_only=soc_only))
 
 
 def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add, html, json_path,
-              window_s, config, seed, set_):
+              window_s, config, seed, set_, soc_only=False):
     from dataclasses import replace
 
     from ebus_env.calibration.settings import load_calibration_config
@@ -602,6 +606,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     model.param_vector(overrides)  # unknown names and values outside bounds fail here
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)
+    if soc_only:
+        profiles = [p.without_measured("battery_current_a", "battery_voltage_v")
+                    for p in profiles]
     without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
     if without_soc:
         raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "

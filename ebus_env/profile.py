@@ -133,6 +133,12 @@ class Profile:
         return Profile(new, self.dt_s, self.name, self.start_time_h, dict(self.measured),
                        list(self.notes), dict(self.samples))
 
+    def without_measured(self, *names: str) -> Profile:
+        """A copy without the measured signals ``names`` (the model's inputs unchanged)."""
+        return Profile(dict(self.channels), self.dt_s, self.name, self.start_time_h,
+                       {k: v for k, v in self.measured.items() if k not in names},
+                       list(self.notes), {k: v for k, v in self.samples.items() if k not in names})
+
     def slice(self, start: int, stop: int) -> Profile:
         """Rows ``start:stop`` as a profile of their own."""
         samples = {k: rows[(rows >= start) & (rows < stop)] - start

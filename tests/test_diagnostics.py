@@ -379,6 +379,27 @@ def test_command_line_diagnose(tmp_path):
     assert bad.exit_code == 2 and "cabin_hvac" in bad.output  # did you mean
 
 
+@pytest.mark.slow
+def test_soc_only_diagnoses_a_bms_log_from_its_soc(tmp_path):
+    """A BMW trip logs current and voltage: diagnosed from 1-min power windows, or with
+    ``--soc-only`` from 5-min SoC slopes, the log and the model otherwise the same."""
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+    from ebus_env.diagnostics.residual import POWER_BASIS, SOC_BASIS
+
+    trip = ROOT / "data/measured/bmw_i3_tum/TripB03_1hz.csv"
+    reports = {}
+    for flag in ([], ["--soc-only"]):
+        out = tmp_path / f"r{len(flag)}.json"
+        result = CliRunner().invoke(app, ["diagnose", str(trip), "--bus", "bmw_i3", "--columns",
+                                          "bmw_i3_tum", "--json", str(out), *flag])
+        assert result.exit_code == 0, result.output
+        reports[bool(flag)] = json.loads(out.read_text())
+    assert (reports[False]["basis"], reports[True]["basis"]) == (POWER_BASIS, SOC_BASIS)
+    assert (reports[False]["window_s"], reports[True]["window_s"]) == (60.0, 300.0)
+
+
 def test_calibration_on_blocks_scores_only_its_blocks():
     """Calibrating on the even blocks never looks at the odd ones: the fit there is honest."""
     case = hidden.case("evening_auxiliaries")
