@@ -48,9 +48,9 @@ from ebus_env.diagnostics.ladder import improvement  # noqa: E402
 from ebus_env.io.measured import load_log  # noqa: E402
 
 BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
-USER_EFFECTS = {hidden: f"{Path(__file__).with_name('user_effects.py')}:{hidden_name}"
-                for hidden, hidden_name in (("battery_chiller", "pack_chiller"),
-                                            ("air_compressor", "air_compressor"))}
+USER_FILE = Path(__file__).with_name("user_effects.py")
+USER_EFFECTS = {"battery_chiller": f"{USER_FILE}:pack_chiller",
+                "air_compressor": f"{USER_FILE}:air_compressor"}
 """For each load the library does not have, the effect a user writes for it
 (``benchmarks/user_effects.py``): what the error ladder adds on those days."""
 

@@ -607,8 +607,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)
     if soc_only:
-        profiles = [p.without_measured("battery_current_a", "battery_voltage_v")
-                    for p in profiles]
+        from ebus_env.diagnostics.residual import POWER_SIGNALS
+
+        profiles = [p.without_measured(*POWER_SIGNALS) for p in profiles]
     without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
     if without_soc:
         raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "

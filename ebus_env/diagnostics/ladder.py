@@ -20,6 +20,7 @@ import numpy as np
 from ebus_env.calibration.calibrate import CalibrationResult, calibrate, evaluate_fit
 from ebus_env.calibration.problem import Blocks, CalibrationProblem, paper_params
 from ebus_env.config import BusConfig, resolve_effect
+from ebus_env.diagnostics.residual import has_power
 from ebus_env.effects.base import Effect
 
 NUISANCE = {
@@ -104,8 +105,6 @@ class Rung:
 def nuisance_ranges(model, profiles=()) -> dict[str, tuple[float, float]]:
     """The :data:`NUISANCE` parameters the model has, and :data:`RESOLVED_BY_POWER` when
     every one of ``profiles`` logs battery current and voltage, with their search ranges."""
-    from ebus_env.diagnostics.residual import has_power
-
     nuisance = dict(NUISANCE)
     if profiles and all(map(has_power, profiles)):
         nuisance.update(RESOLVED_BY_POWER)

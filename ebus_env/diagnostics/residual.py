@@ -89,10 +89,13 @@ def measured_soc_at(profile, step: int) -> float:
     return float(np.interp(step, rows, profile.measured["soc_frac"][rows]))
 
 
+POWER_SIGNALS = ("battery_current_a", "battery_voltage_v")
+"""The measured signals whose product is the battery power (:data:`POWER_BASIS`)."""
+
+
 def has_power(profile) -> bool:
     """Whether the log has battery current and voltage everywhere."""
-    current = profile.measured.get("battery_current_a")
-    voltage = profile.measured.get("battery_voltage_v")
+    current, voltage = (profile.measured.get(name) for name in POWER_SIGNALS)
     return current is not None and voltage is not None and bool(
         np.all(np.isfinite(current * voltage)))
 
