@@ -64,9 +64,23 @@ def test_passenger_mass(fn):
 
 @pytest.mark.parametrize("fn", both("regen_cutoff"))
 def test_regen_cutoff(fn):
-    assert fn(speed_mps=1.4, cutoff_speed_mps=1.5, max_share=1.0) == 0.0
-    assert fn(speed_mps=1.5, cutoff_speed_mps=1.5, max_share=1.0) == 0.0
-    assert fn(speed_mps=1.6, cutoff_speed_mps=1.5, max_share=0.8) == 0.8
+    def share(speed_mps, max_share=1.0, demand_n=-10_000.0, max_decel_mps2=5.0):
+        return fn(speed_mps=speed_mps, wheel_force_demand_n=demand_n, road_force_n=1_000.0,
+                  effective_mass_kg=14_000.0, max_brake_decel_mps2=5.0, cutoff_speed_mps=1.5,
+                  max_share=max_share, max_decel_mps2=max_decel_mps2)
+
+    assert share(1.4) == 0.0
+    assert share(1.5) == 0.0
+    assert share(1.6, max_share=0.8) == 0.8
+    # series blending: a 14 t bus braking with 28 kN (2 m/s^2) and a motor allowed 0.8 m/s^2
+    # alone gets 11.2 kN from the motor, the share 0.4; gentle braking stays with the motor
+    assert share(10.0, demand_n=-28_000.0, max_decel_mps2=0.8) == pytest.approx(0.4)
+    assert share(10.0, demand_n=-7_000.0, max_decel_mps2=0.8) == 1.0
+    assert share(10.0, max_share=0.7, demand_n=-14_000.0, max_decel_mps2=0.8) == \
+        pytest.approx(0.7)  # 9.8 kN < 11.2 kN
+    # at the brakes' own 5 m/s^2 nothing is limited, however hard the driver asks: the demand
+    # is cut to 14 t x 5 m/s^2 less the road's 1 kN first, 69 kN < 70 kN
+    assert share(10.0, demand_n=-500_000.0) == 1.0
 
 
 @pytest.mark.parametrize("fn", both("cccv_taper"))
@@ -335,14 +349,18 @@ def test_tables_off_any_small_grid_are_approximated_not_exploded():
 
 @pytest.mark.parametrize("fn", both("regen_soc_limit"))
 def test_regen_soc_limit_derates_at_high_soc(fn):
-    def share(speed_mps, soc_frac):
-        return fn(speed_mps=speed_mps, soc_frac=soc_frac, cutoff_speed_mps=1.5, max_share=1.0,
+    def share(speed_mps, soc_frac, demand_n=-10_000.0, max_decel_mps2=5.0):
+        return fn(speed_mps=speed_mps, soc_frac=soc_frac, wheel_force_demand_n=demand_n,
+                  road_force_n=1_000.0, effective_mass_kg=14_000.0, max_brake_decel_mps2=5.0,
+                  cutoff_speed_mps=1.5, max_share=1.0, max_decel_mps2=max_decel_mps2,
                   derate_soc_pct=90.0)
 
     assert share(1.0, 0.5) == 0.0  # below the cutoff
     assert share(5.0, 0.5) == 1.0
     assert share(5.0, 0.95) == pytest.approx(0.5)
     assert share(5.0, 1.0) == 0.0
+    # derated to half of 28 kN, 14 kN, then the motor's 0.8 m/s^2 of a 14 t bus: 11.2 kN
+    assert share(5.0, 0.95, demand_n=-28_000.0, max_decel_mps2=0.8) == pytest.approx(0.4)
 
 
 @pytest.mark.parametrize("fn", both("passenger_schedule"))

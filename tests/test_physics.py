@@ -64,6 +64,23 @@ def test_regen_is_zero_below_cutoff_speed(model12, sort2_hour):
     assert np.any(motor[braking & (speed > cutoff)] < 0)  # and it does regenerate above
 
 
+def test_series_blending_caps_the_motors_deceleration(model12, sort2_hour):
+    """With the motor allowed 0.5 m/s^2 alone, harder braking goes to the friction brakes: the
+    motor's braking force never exceeds m_eff a_regen, the pack recovers less, and the braking
+    energy the motor gives up is what the friction brakes take."""
+    limited = model12.param_vector(model12.carry_over({"regen_cutoff.max_decel_mps2": 0.5}))
+    free, capped = model12.simulate(sort2_hour), model12.simulate(sort2_hour, limited)
+    motor = capped.trace("motor_force_n")
+    limit_n = capped.trace("effective_mass_kg") * 0.5
+    assert np.all(-motor <= limit_n * (1 + 1e-6))
+    assert np.any(free.trace("motor_force_n") < -limit_n * 1.4)  # SORT 2 brakes at 0.83 m/s^2
+    b_free, b_capped = free.summary()["breakdown_kwh"], capped.summary()["breakdown_kwh"]
+    assert b_capped["friction_brake"] > b_free["friction_brake"] + 2.0  # of ~20 kWh an hour
+    assert capped.summary()["battery_energy_kwh"] > free.summary()["battery_energy_kwh"] + 2.0
+    # the same wheel: the speed trace is followed as closely with friction as with the motor
+    assert np.allclose(capped.trace("speed_mps"), free.trace("speed_mps"), atol=1e-6)
+
+
 def test_energy_balance_closes_over_a_full_day(model12, sort2_day):
     """Battery energy from the SoC trace (OCV x dSoC x capacity) equals the sum of every
     contribution and loss the summary reports, within 0.1 % of the pack's throughput."""
