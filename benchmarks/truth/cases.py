@@ -191,6 +191,29 @@ def _used_j(trace: pd.DataFrame) -> float:
                  + end["e_battery_loss_j"])
 
 
+def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:
+    """The truth simulator's run of a case: its plan, the bus's base parameters, the hidden
+    effect's physical values, the day's options and the 1 Hz trace (every signal, before the
+    log is degraded)."""
+    plan_ss, base_ss, phys_ss, _ = np.random.SeedSequence(case.seed).spawn(4)
+    base = draw_base(np.random.default_rng(base_ss), case.chemistry)
+    # An operator plans charging so that the bus finishes its day: when the drawn chargers
+    # leave the pack below MIN_SOC_FRAC, the same day is run with 450 kW at both terminals.
+    full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
+    # regen-limit days are topped up at every layover, so the bus runs at high SoC
+    for chargers in ((full,) if case.hidden == "regen_soc_limit" else ({}, full)):
+        plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
+                         case.route, climate=case.climate, **chargers)
+        phys_rng = np.random.default_rng(phys_ss)
+        base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
+        ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
+        trace = simulate(plan, base, case.hidden, ph, **day)
+        if trace["soc_frac"].min() >= MIN_SOC_FRAC:
+            return plan, base, ph, day, trace
+    raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
+                       f"(SoC {100 * trace['soc_frac'].min():.1f} %)")
+
+
 def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, dict]:
     """The degraded log and the truth record of one case; ``current_voltage``: the log has
     the pack's current and voltage too (a BMS log), the rest of it unchanged.
@@ -206,24 +229,8 @@ def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, d
     options and a summary (km, kWh/km at the battery, the hidden load's energy, and
     ``effect_kwh``: what the effect adds to the energy used against the same day without it).
     """
-    plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
-    base = draw_base(np.random.default_rng(base_ss), case.chemistry)
-    # An operator plans charging so that the bus finishes its day: when the drawn chargers
-    # leave the pack below MIN_SOC_FRAC, the same day is run with 450 kW at both terminals.
-    full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
-    # regen-limit days are topped up at every layover, so the bus runs at high SoC
-    for chargers in ((full,) if case.hidden == "regen_soc_limit" else ({}, full)):
-        plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
-                         case.route, climate=case.climate, **chargers)
-        phys_rng = np.random.default_rng(phys_ss)
-        base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
-        ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
-        trace = simulate(plan, base, case.hidden, ph, **day)
-        if trace["soc_frac"].min() >= MIN_SOC_FRAC:
-            break
-    else:
-        raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
-                           f"(SoC {100 * trace['soc_frac'].min():.1f} %)")
+    plan, base, ph, day, trace = day_trace(case)
+    log_ss = np.random.SeedSequence(case.seed).spawn(4)[3]
     # the hidden effect's size: the energy the loads and the battery's losses take, with the
     # effect against the same day without it
     without = trace if case.hidden is None else simulate(plan, base, None, {}, **day)
