@@ -191,11 +191,16 @@ def _used_j(trace: pd.DataFrame) -> float:
                  + end["e_battery_loss_j"])
 
 
+def _streams(case: Case) -> list[np.random.SeedSequence]:
+    """The case's independent random streams: plan, base parameters, physics, log."""
+    return np.random.SeedSequence(case.seed).spawn(4)
+
+
 def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:
     """The truth simulator's run of a case: its plan, the bus's base parameters, the hidden
     effect's physical values, the day's options and the 1 Hz trace (every signal, before the
     log is degraded)."""
-    plan_ss, base_ss, phys_ss, _ = np.random.SeedSequence(case.seed).spawn(4)
+    plan_ss, base_ss, phys_ss, _ = _streams(case)
     base = draw_base(np.random.default_rng(base_ss), case.chemistry)
     # An operator plans charging so that the bus finishes its day: when the drawn chargers
     # leave the pack below MIN_SOC_FRAC, the same day is run with 450 kW at both terminals.
@@ -230,7 +235,7 @@ def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, d
     ``effect_kwh``: what the effect adds to the energy used against the same day without it).
     """
     plan, base, ph, day, trace = day_trace(case)
-    log_ss = np.random.SeedSequence(case.seed).spawn(4)[3]
+    log_ss = _streams(case)[3]
     # the hidden effect's size: the energy the loads and the battery's losses take, with the
     # effect against the same day without it
     without = trace if case.hidden is None else simulate(plan, base, None, {}, **day)
