@@ -80,8 +80,10 @@ class Slot:
     """A role that exactly one effect fills.
 
     ``calls`` maps each call site to the signals the implementation must return there (in this
-    order, followed by any extra signals the effect declares). ``none`` gives the constant
-    outputs of the pass-through implementation, or None when the slot cannot be empty.
+    order, followed by any extra signals the effect declares). ``optional`` names the call
+    sites an implementation may leave out (they require no signals; the step then has no such
+    call). ``none`` gives the constant outputs of the pass-through implementation, or None
+    when the slot cannot be empty.
     """
 
     name: str
@@ -89,6 +91,7 @@ class Slot:
     calls: dict[str, tuple[str, ...]]
     default: str
     none: dict[str, float] | None = field(default=None)
+    optional: tuple[str, ...] = ()
 
 
 SLOTS: dict[str, Slot] = {
@@ -102,8 +105,9 @@ SLOTS: dict[str, Slot] = {
         Slot("aging", "Battery ageing: capacity and resistance factors",
              {"main": ("capacity_factor", "resistance_factor")}, default="static_rcd",
              none={"capacity_factor": 1.0, "resistance_factor": 1.0}),
-        Slot("battery_thermal", "Battery pack temperature",
-             {"main": ("battery_temp_degc",)}, default="managed_temperature"),
+        Slot("battery_thermal", "Battery pack temperature (and its heating by the step's losses)",
+             {"main": ("battery_temp_degc",), "heat": ()}, default="managed_temperature",
+             optional=("heat",)),
         Slot("battery", "Battery pack: open-circuit voltage, resistance, limits, state of charge",
              {"pack": ("capacity_ah",),
               "state": ("ocv_v", "resistance_ohm", "charge_current_max_a", "charge_power_max_w",

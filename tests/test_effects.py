@@ -378,12 +378,44 @@ def test_passenger_schedule_peaks(fn):
               load_shape=table) == 33.0
 
 
-@pytest.mark.parametrize("fn", both("ambient_battery"))
-def test_ambient_battery_follows_the_ambient(fn):
-    temp, nxt = fn(cell_temp_degc=20.0, ambient_degc=0.0, dt_s=3600.0, time_constant_h=1.0)
-    assert temp == 20.0 and nxt == pytest.approx(0.0)  # one time constant in one step
-    temp, nxt = fn(cell_temp_degc=20.0, ambient_degc=0.0, dt_s=36.0, time_constant_h=1.0)
-    assert nxt == pytest.approx(20.0 - 20.0 * 0.01)
+@pytest.mark.parametrize("fn", both("ambient_battery", "heat"))
+def test_ambient_battery_follows_the_ambient_and_its_own_heat(fn):
+    def heat(temp, loss_w, dt_s, tau_h=1.0, capacity=2e6):
+        return fn(cell_temp_degc=temp, ambient_degc=0.0, battery_loss_w=loss_w, dt_s=dt_s,
+                  time_constant_h=tau_h, heat_capacity_j_per_k=capacity)
+
+    assert heat(20.0, 0.0, 3600.0) == pytest.approx(0.0)  # one time constant in one step
+    assert heat(20.0, 0.0, 36.0) == pytest.approx(20.0 - 20.0 * 0.01)
+    # 10 kW into 2 MJ/K for 100 s: +0.5 K
+    assert heat(0.0, 10e3, 100.0) == pytest.approx(0.5)
+    # steady state: the loss leaves through hA = C / tau, T - T_amb = Q tau / C = 3.6 K
+    assert heat(3.6, 2e3, 100.0, tau_h=1.0) == pytest.approx(3.6)
+
+
+def test_ambient_battery_reads_the_state_and_heats_after_the_battery(bus12):
+    eff = get_effect("ambient_battery")
+    assert eff.calls["main"].function(cell_temp_degc=-3.0) == -3.0
+    # the heat call comes after the battery's update, whose loss it reads; the managed pack
+    # leaves the optional call out and its step has none
+    source = bus12.with_effect(eff).build().layout.source
+    assert source.index("fx__rint_battery__update(") < source.index("fx__ambient_battery__heat(")
+    assert "heat" not in get_effect("managed_temperature").calls
+    assert "__heat(" not in bus12.build().layout.source
+
+
+def test_a_slot_effect_may_leave_out_only_the_optional_calls():
+    from ebus_env.effects.base import Call, Effect
+
+    def temperature():
+        return 20.0
+
+    with pytest.raises(ValueError, match="call sites"):  # 'main' is not optional
+        Effect("no_main", slot="battery_thermal",
+               calls={"heat": Call(temperature, ("cell_temp_degc_next",))})
+    with pytest.raises(ValueError, match="call sites"):  # no such call site
+        Effect("extra_call", slot="battery_thermal",
+               calls={"main": Call(temperature, ("battery_temp_degc",)),
+                      "cool": Call(temperature, ("x",))})
 
 
 def test_an_effect_offers_handles_by_name_and_unit():

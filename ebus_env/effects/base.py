@@ -147,13 +147,17 @@ class Effect:
         else:
             if self.slot not in SLOTS:
                 raise unknown_name("slot", self.slot, SLOTS)
-            required = SLOTS[self.slot].calls
-            if set(self.calls) != set(required):
+            slot = SLOTS[self.slot]
+            required = slot.calls
+            if not set(required) - set(slot.optional) <= set(self.calls) <= set(required):
+                optional = f" ({', '.join(slot.optional)} optional)" if slot.optional else ""
                 raise ValueError(
                     f"Effect '{self.name}' fills slot '{self.slot}', whose call sites are "
-                    f"{sorted(required)}; it gives {sorted(self.calls)}."
+                    f"{sorted(required)}{optional}; it gives {sorted(self.calls)}."
                 )
             for site, outputs in required.items():
+                if site not in self.calls:
+                    continue
                 got = self.calls[site].returns
                 if tuple(got[: len(outputs)]) != outputs:
                     raise ValueError(

@@ -177,21 +177,43 @@ def managed_temperature(temperature_degc):
     return temperature_degc
 
 
-@effect("ambient_battery", slot="battery_thermal", label="cold battery resistance",
-        drivers=("ambient_degc",),
-        returns=("cell_temp_degc_next",), key_params=("initial_offset_k",),
-        refines="managed_temperature", params=[
-    Param("time_constant_h", 3.0, "h", (0.1, 48.0),
-          "Time constant tau of the pack temperature following the ambient"),
-    Param("initial_offset_k", 0.0, "K", (-20.0, 30.0),
-          "Pack temperature above ambient at the start of the run"),
-], states=[
-    State("cell_temp_degc", "degC", "Pack temperature without thermal management",
-          lambda p, x: x.get("ambient_degc", 20.0) + p["initial_offset_k"]),
-])
-def ambient_battery(cell_temp_degc, ambient_degc, dt_s, time_constant_h):
-    """A pack without thermal management: its temperature follows the ambient,
-    dT/dt = (T_amb - T) / tau, so a cold day raises its resistance (Arrhenius). It starts
-    ``initial_offset_k`` above the first ambient (the state's initial value)."""
-    next_temp = cell_temp_degc + (ambient_degc - cell_temp_degc) * (dt_s / (3600.0 * time_constant_h))
-    return cell_temp_degc, next_temp
+def pack_temperature(cell_temp_degc):
+    """The pack's temperature over this step: its state."""
+    return cell_temp_degc
+
+
+def pack_heat(cell_temp_degc, ambient_degc, battery_loss_w, dt_s, time_constant_h,
+              heat_capacity_j_per_k):
+    """The pack's temperature after the step: its lumped heat balance
+    C dT/dt = Q - hA (T - T_amb), with Q the step's ohmic loss and hA = C / tau."""
+    rate_k_per_s = ((ambient_degc - cell_temp_degc) / (3600.0 * time_constant_h)
+                    + battery_loss_w / heat_capacity_j_per_k)
+    return cell_temp_degc + rate_k_per_s * dt_s
+
+
+ambient_battery = register(Effect(
+    name="ambient_battery",
+    slot="battery_thermal",
+    calls={"main": Call(pack_temperature, ("battery_temp_degc",)),
+           "heat": Call(pack_heat, ("cell_temp_degc_next",))},
+    params=(
+        Param("time_constant_h", 3.0, "h", (0.1, 48.0),
+              "Time constant tau = C / hA of the pack temperature following the ambient"),
+        Param("initial_offset_k", 0.0, "K", (-20.0, 30.0),
+              "Pack temperature above ambient at the start of the run"),
+        Param("heat_capacity_j_per_k", 2.0e6, "J/K", (5.0e4, 5.0e7),
+              "Heat capacity C of the pack: its mass times the cells' specific heat",
+              "~1.8 t of LFP pack x 1.1 kJ/(kg K) (Forgez et al. 2010); docs/physics.md §5.6"),
+    ),
+    states=(State("cell_temp_degc", "degC", "Pack temperature without thermal management",
+                  lambda p, x: x.get("ambient_degc", 20.0) + p["initial_offset_k"]),),
+    drivers=("ambient_degc",),
+    key_params=("initial_offset_k",),
+    refines="managed_temperature",
+    label="cold battery resistance",
+    doc="""A pack without thermal management: it follows the ambient, warmed by its losses.
+
+C dT/dt = R I^2 - (C / tau) (T - T_amb): a cold day raises the pack's resistance (Arrhenius),
+and driving and charging warm it and lower it again. It starts ``initial_offset_k`` above the
+first ambient (the state's initial value).""",
+))

@@ -164,6 +164,8 @@ class _Writer:
                 self.lines.append(f"{name} = {float(slot.none[name])!r}")
             self.provide(names, f"the empty slot '{stage.slot}'")
             return
+        if stage.call not in eff.calls:  # an optional call site this effect has no use for
+            return
         outputs = list(eff.calls[stage.call].returns)
         if not stage.when:
             self.call(eff, stage.call, outputs, f"slot '{stage.slot}' ({stage.call})")

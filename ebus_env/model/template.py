@@ -11,6 +11,7 @@ Per step (state at t_k, inputs of row k, everything in SI)::
     loads and limits at t_k  ->  driver demand  ->  allocation + dynamics (v_k -> v_k+1)
       -> motor power at v_mid = (v_k + v_k+1)/2  ->  battery limits  ->  charger
       -> battery power = motor + loads - charger  ->  battery update (SoC_k -> SoC_k+1)
+      -> the pack's heat (an unmanaged pack's temperature T_k -> T_k+1)
 
 Powers use v_mid so that the energy balance closes exactly:
 F v_mid dt = m_eff (v_k+1^2 - v_k^2)/2 + F_road v_mid dt.
@@ -145,6 +146,7 @@ STAGES = (
     Site("charger"),
     Code(_BOOKKEEPING, ("battery_power_w",)),
     Site("battery", "update"),
+    Site("battery_thermal", "heat"),  # the pack's temperature after this step's losses
     Code(_AFTER_BATTERY, ("distance_m_next", "distance_ref_m_next", "distance_behind_m",
                           "inertia_w", "friction_brake_w", "drivetrain_loss_w", "charger_loss_w",
                           "battery_chemical_w")),
