@@ -72,10 +72,11 @@ CASES = (
          "passenger count in the log; the baseline carries a constant half load",
          start_h=6.0, hours=13.0),
     Case("cold_battery", "ambient_battery", (),
-         {"ambient_battery.initial_offset_k": 20.0, "ambient_battery.time_constant_h": 3.0},
-         "a pack without thermal management leaves the depot at 16 degC and cools towards "
-         "-4 to -7 degC outside, its resistance rising (Arrhenius); the baseline holds it at "
-         "25 degC", ambient_degc=(-4.0, -7.0)),
+         {"ambient_battery.initial_offset_k": 0.0, "ambient_battery.time_constant_h": 3.0},
+         "a bus parked outdoors overnight: its pack without thermal management starts at the "
+         "-4 degC air and warms by its own losses, on the charger above all, while the air "
+         "cools to -7 degC; its resistance (Arrhenius) falls through the morning; the "
+         "baseline holds the pack at 25 degC", ambient_degc=(-4.0, -7.0)),
     Case("control", None, (), {}, "nothing hidden: the baseline is the truth"),
     Case("door_compressor", "examples/my_effects.py:door_compressor", (),
          {"door_compressor.power_w": 5000.0},
