@@ -2,6 +2,7 @@
 the pack's own ohmic heat.
 
     python benchmarks/compare_pack_temperature.py [--reserved]
+    python benchmarks/compare_pack_temperature.py --smoke   # CI: trip B03 only
 
 The TUM BMW i3 trips (``data/measured/bmw_i3_tum``) log the pack's temperature (1 K steps).
 The i3 (``configs/bus/bmw_i3.yaml``) with ``ambient_battery`` in its battery-temperature slot
@@ -61,11 +62,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reserved", action="store_true",
                         help="also the reserved trips B17, B38, A08 (report only)")
+    parser.add_argument("--smoke", action="store_true", help="trip B03 only (CI)")
     args = parser.parse_args()
+    trips = ("B03",) if args.smoke else TRIPS + (RESERVED if args.reserved else ())
     print(f"{'trip':6s} {'pack logged degC':>18s} {'ambient degC':>13s} "
           f"{'RMSE following ambient K':>25s} {'RMSE + ohmic heat K':>19s} "
           f"{'end error K (both)':>19s}")
-    for trip in TRIPS + (RESERVED if args.reserved else ()):
+    for trip in trips:
         raw = pd.read_csv(BMW / f"Trip{trip}_1hz.csv")
         (rmse_a, end_a), (rmse_h, end_h) = errors_k(trip, False), errors_k(trip, True)
         temp, ambient = raw["batt_temp_c"], raw["ambient_temp_c"]
@@ -73,7 +76,7 @@ def main() -> None:
               f"{f'{temp.iloc[0]:.0f} -> {temp.iloc[-1]:.0f} (max {temp.max():.0f})':>18s} "
               f"{f'{ambient.min():.1f} to {ambient.max():.1f}':>13s} {rmse_a:25.2f} "
               f"{rmse_h:19.2f} {f'{end_a:+.1f} / {end_h:+.1f}':>19s}")
-    if args.reserved:
+    if set(trips) & set(RESERVED):
         print("* reserved trip: reported only")
 
 
