@@ -4,6 +4,7 @@ commands, a worker killed mid-study, and a final table equal to an undisturbed r
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import signal
 import socket
@@ -95,9 +96,11 @@ def test_a_worker_killed_mid_study_is_retried_and_the_table_is_complete(tmp_path
     study.write_text(yaml.safe_dump(data))
     undisturbed = run_study(load_study(study), tmp_path / "in_process", say=lambda _: None)
     marker = tmp_path / "killed"
+    # the cluster's own token for every node and the driver: the machine may have none in
+    # ~/.ray/auth_token, and a test must not write one there
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS.parent), str(TESTS)]),
            "EBUS_STUDY_KILL_MARKER": str(marker), "RAY_USAGE_STATS_ENABLED": "0",
-           "RAY_AUTH_MODE": "token"}
+           "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
     with two_node_cluster(env) as address:
         run = subprocess.run([sys.executable, "-c", "from ebus_env.cli import app; app()",
                               "study", str(study), "--out", str(tmp_path / "on_ray"),
