@@ -171,14 +171,16 @@ def test_data_problems_are_flagged_and_their_windows_left_out(tmp_path):
 LIBRARY_CASES = [c.name for c in hidden.CASES if c.effect and ".py:" not in c.effect]
 
 
-def test_the_shipped_hidden_days_are_what_the_generator_makes():
-    case = hidden.case("control")
-    made = hidden.generate(case, hidden.SEED + [c.name for c in hidden.CASES].index("control"))
-    shipped = pd.read_csv(hidden.OUT_DIR / "control.csv.gz")
+@pytest.mark.parametrize("name", [c.name for c in hidden.CASES])
+def test_the_shipped_hidden_days_are_what_the_generator_makes(name):
+    case = hidden.case(name)
+    made = hidden.generate(case, hidden.SEED + [c.name for c in hidden.CASES].index(name))
+    shipped = pd.read_csv(hidden.OUT_DIR / f"{name}.csv.gz")
     assert made.to_csv(index=False, float_format=hidden.FLOAT_FORMAT) == \
         shipped.to_csv(index=False, float_format=hidden.FLOAT_FORMAT)
     manifest = json.loads((hidden.OUT_DIR / "cases.json").read_text())
     assert set(manifest) == {c.name for c in hidden.CASES}
+    assert manifest[name]["truth"] == case.truth
 
 
 @pytest.mark.parametrize("name", [  # one case in the fast suite, every case in test-all
