@@ -28,6 +28,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -218,7 +219,6 @@ def truth_day(source: str, case, folder: Path, current_voltage: bool = False):
     case cut shorter (the smoke run's last hours of a day) is cached under its own name, so
     that the whole bench never reads a cut day from a shared folder, nor the reverse; so is
     a log with the pack's current and voltage (``current_voltage``, the truth simulator's)."""
-    import json
 
     iv = "-iv" if current_voltage else ""
 
@@ -340,7 +340,8 @@ def figures(rows) -> dict:
 
 def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   sources: tuple[str, ...] = tuple(SOURCES), per_effect: int | None = None,
-                  controls: int | None = None, current_voltage: bool = False) -> None:
+                  controls: int | None = None, current_voltage: bool = False,
+                  rows_path: Path | None = None) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -362,6 +363,10 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         rows = []
         for row in pool.map(diagnose_truth_day, jobs):
             rows.append(row)
+            if rows_path is not None:  # every day so far, for analyses without a re-run
+                tmp = rows_path.with_name(rows_path.name + ".tmp")
+                tmp.write_text(json.dumps(rows, default=float, indent=1))
+                tmp.replace(rows_path)
             fall = f"; held-out NRMSE fall {100 * row['fall']:.0f} %" if "fall" in row else ""
             line(f"{row['source']}/{row['case']}", str(row["verdict"] or row["status"]),
                  f"expected {row['expected']}; top {row['top']}; clue {row['clue']}; "
@@ -416,13 +421,15 @@ def main() -> None:
     parser.add_argument("--current-voltage", action="store_true",
                         help="out of family: logs with the pack's current and voltage too (a "
                         "BMS log; the truth simulator's days)")
+    parser.add_argument("--rows", type=Path, default=None,
+                        help="out of family: write every day's result here (JSON)")
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw"))
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
-                      args.per_effect, args.controls, args.current_voltage)
+                      args.per_effect, args.controls, args.current_voltage, args.rows)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:
