@@ -142,6 +142,9 @@ RANGES: dict[str, Range] = {r.name: r for r in (
     Range("log_start_h", "h", 0.0, 24.0, "Time of day of a log's first row, for a log "
           "without date-times (07:30 is 7.5 h); a log with date-times has its own clock.",
           given="`--start-time HH:MM`; `load_log(start_h=)`"),
+    Range("log_load_kw", "kW", -1000.0, 1000.0, "A load on the DC bus in kW (not W: divide "
+          "by 1000); a bus's HVAC draws up to about 40 kW, a compressor 10 kW. Negative where "
+          "the logged load returns power to the bus.", given="log column `logged_load_kw`"),
     Range("log_soc_pct", "%", 0.0, 100.0, "SoC in percent; a 0-1 column is `soc_frac`.",
           given="log column `soc_pct`"),
     Range("service_h", "h", 0.0, 24.0, "Service hours of an env episode.", open_low=True,

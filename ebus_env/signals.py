@@ -41,6 +41,9 @@ INPUTS: dict[str, Input] = {
               "Rated DC power of the connected charger; NaN: the charger's power parameter"),
         Input("door_open", "1", 0.0, "1 while the doors are open (derived: standing, not charging)"),
         Input("solar_w_per_m2", "W/m^2", 0.0, "Global solar irradiance on the bus"),
+        Input("logged_load_w", "W", 0.0,
+              "A load the log measures and the model does not compute (> 0 draws from the DC "
+              "bus): an HVAC or compressor submeter"),
         Input("time_of_day_h", "h", 0.0, "Local time of day (derived from the profile's start)"),
     )
 }

@@ -250,6 +250,31 @@ def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():
     assert hasattr(model.kernel("run"), "signatures")  # compiled by numba like the built-ins
 
 
+def test_a_logged_load_the_model_lacks_is_named_at_the_share_the_log_saw(tmp_path):
+    """A submeter that saw half of the door compressor's power (the compressor day made with
+    the README's example effect): the diagnosis names the replayed logged load at a scale of
+    about 2, and adding it at that scale takes most of the error away."""
+    case = hidden.case("door_compressor")
+    frame = pd.read_csv(hidden.OUT_DIR / f"{case.name}.csv.gz")
+    profile, = hidden_log(case.name)
+    run = hidden.true_bus(case).build().simulate(profile, soc_start=frame["soc_pct"][0] / 100)
+    compressor_w = run.trace("door_compressor_w")[::int(round(1.0 / profile.dt_s))]
+    assert compressor_w.max() == pytest.approx(5000.0)
+    frame["logged_load_kw"] = 0.5 * compressor_w[:len(frame)] / 1e3
+    frame.to_csv(tmp_path / "day.csv", index=False)
+    d = diagnose(load_bus("12m"), load_log(tmp_path / "day.csv").profiles)
+    assert d.verdict == "replayed_load", d.why
+    scale = d.ranking[0]["parameters"]["replayed_load.scale"]
+    assert scale == pytest.approx(2.0, rel=0.1)
+    low, high = d.ranking[0]["interval"]["replayed_load.scale"]
+    assert low <= scale <= high
+    assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
+    # a log without the column: the effect changes nothing there, and says why
+    plain = diagnose(load_bus("12m"), hidden_log(case.name))
+    aside = {a["effect"]: a["why"] for a in plain.set_aside}
+    assert "in the log" in aside["replayed_load"]
+
+
 def test_readme_shows_the_users_effect_file_verbatim():
     readme = (ROOT / "README.md").read_text()
     assert (ROOT / "examples" / "my_effects.py").read_text().strip() in readme

@@ -116,6 +116,14 @@ def test_auxiliaries_and_schedule():
         assert fn(time_of_day_h=7.5, scale=2.0, schedule_w=table) == pytest.approx(2000.0)
 
 
+def test_replayed_load_is_the_logged_load_times_its_scale():
+    for fn in both("replayed_load"):
+        assert fn(logged_load_w=3000.0, scale=1.0) == 3000.0
+        assert fn(logged_load_w=3000.0, scale=0.5) == 1500.0
+        assert fn(logged_load_w=-800.0, scale=2.0) == -1600.0  # a load returning power
+        assert fn(logged_load_w=0.0, scale=3.0) == 0.0  # a log without it: nothing
+
+
 CABIN = dict(setpoint_degc=20.0, deadband_k=1.0, ua_w_per_k=400.0, heat_capacity_j_per_k=1e6,
              fresh_air_kg_per_s=0.4, door_air_m3_per_s=0.7, passenger_heat_w=100.0,
              solar_area_m2=6.0, heating_max_w=25000.0, cooling_max_w=25000.0,

@@ -151,6 +151,19 @@ def test_flags_and_ranges_are_checked(tmp_path):
         load_log(write(tmp_path, frame))
 
 
+def test_a_logged_load_is_a_channel_in_watts_within_its_range(tmp_path):
+    frame = good_frame()
+    frame["logged_load_kw"] = np.where(frame.time_s > 300, 6.5, 0.0)
+    log = load_log(write(tmp_path, frame))
+    load = log.profile.channels["logged_load_w"]
+    assert load.max() == pytest.approx(6500.0) and load.min() == 0.0
+    assert "logged_load_kw" not in log.profile.measured  # an input, not a signal to compare
+    frame.loc[5, "logged_load_kw"] = 6500.0  # watts in the kW column
+    with pytest.raises(LogError, match=r"outside \[-1000, 1000\].*'logged_load_kw', row 5"
+                                       r".*divide by 1000"):
+        load_log(write(tmp_path, frame))
+
+
 def test_column_map_with_scale_and_unknown_source(tmp_path):
     frame = good_frame().rename(columns={"speed_kmh": "Velocity [km/h]"})
     frame["I [A]"] = -100.0

@@ -34,3 +34,17 @@ def aux_schedule(time_of_day_h, scale, schedule_w):
     """Auxiliary load that follows the time of day: P = scale * P_sched(t) [W] (a table in the
     bus config, ``tables: {aux_schedule: {schedule_w: {x: [hours], y: [watts]}}}``)."""
     return scale * lookup1(schedule_w, time_of_day_h)
+
+
+@effect("replayed_load", sink="dc_load_w", label="the log's measured load",
+        drivers=("logged_load_w",),
+        params=[
+    Param("scale", 1.0, "1", (0.0, 3.0), "Factor on the logged load",
+          "1: the load as the log measures it"),
+])
+def replayed_load(logged_load_w, scale):
+    """A load the log measures and the model does not compute, replayed onto the DC bus:
+    P = scale * P_logged [W] (the log's ``logged_load_kw``: an HVAC or compressor submeter).
+    In a diagnosis it is the candidate "the logged load explains the missing power", and
+    ``scale`` says how much of it: 1 where the submeter and the pack agree."""
+    return scale * logged_load_w

@@ -19,6 +19,9 @@ column                 required  meaning
 ``battery_voltage_v``            pack voltage
 ``cabin_temp_degc``              cabin air temperature (the model's cabin starts at the
                                  first value)
+``logged_load_kw``               a load measured on the bus that the model does not
+                                 compute (an HVAC or compressor submeter), > 0 drawing
+                                 from the DC bus; the ``replayed_load`` effect replays it
 =====================  ========  ====================================================
 
 Files named otherwise are mapped with ``columns`` (``{"Velocity [km/h]": "speed_kmh"}`` or
@@ -50,6 +53,7 @@ CANONICAL = {
     "time_s", "timestamp", "speed_kmh", "speed_mps", "soc_pct", "soc_frac", "ambient_degc",
     "grade_pct", "grade_frac", "altitude_m", "charging", "charger_kw", "passengers", "door_open",
     "solar_w_per_m2", "battery_current_a", "battery_voltage_v", "cabin_temp_degc",
+    "logged_load_kw",
 }
 FLAGS = ("charging", "door_open")
 GAP_POLICIES = ("error", "split", "hold", "interpolate")
@@ -420,6 +424,10 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     if "ambient_degc" in values:
         amb = RANGES["ambient_degc"]
         _check_range("ambient_degc", values["ambient_degc"], amb.low, amb.high, path, amb.why)
+    if "logged_load_kw" in values:
+        load = RANGES["log_load_kw"]
+        _check_range("logged_load_kw", values["logged_load_kw"], load.low, load.high, path,
+                     load.why)
     if "soc_pct" not in values and "soc_frac" not in values:
         report.warnings.append("the log has no SoC column (soc_pct or soc_frac): nothing to "
                                "compare, and a simulation starts at the given or default SoC")
@@ -504,6 +512,8 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
         channels["door_open"] = rs("door_open", values["door_open"], flag=True)
     if "solar_w_per_m2" in values:
         channels["solar_w_per_m2"] = rs("solar_w_per_m2", values["solar_w_per_m2"])
+    if "logged_load_kw" in values:
+        channels["logged_load_w"] = rs("logged_load_kw", values["logged_load_kw"] * 1e3)
     measured, samples = {}, {}
     soc = values["soc_pct"][a:b] / 100.0 if "soc_pct" in values else (
         values["soc_frac"][a:b] if "soc_frac" in values else None)
@@ -513,7 +523,7 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
         rows = np.unique(np.clip(np.rint((ts - g[0]) / dt_s).astype(np.int64), 0, len(g) - 1))
         samples["soc_frac"] = rows
     used = {speed_col, "grade_frac", "grade_pct", "ambient_degc", "passengers", "charging",
-            "charger_kw", "door_open", "solar_w_per_m2", "soc_pct", "soc_frac"}
+            "charger_kw", "door_open", "solar_w_per_m2", "soc_pct", "soc_frac", "logged_load_kw"}
     for name_, data in values.items():
         if name_ not in used:
             measured[name_] = rs(name_, data)
