@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from benchmarks.truth.days import _SEASONS, route_day
-from benchmarks.truth.degrade import degrade
+from benchmarks.truth.degrade import degrade, effect_load_kw
 from benchmarks.truth.sim import HIDDEN, simulate
 from benchmarks.truth.vehicles import draw_base
 
@@ -184,11 +184,15 @@ def _strength(hidden: str | None, ph: dict, trace: pd.DataFrame) -> dict:
     return {}
 
 
+def _used_series(trace: pd.DataFrame) -> np.ndarray:
+    """Energy taken by the drive, the loads and the battery's own losses since the start [J]."""
+    return (trace["e_drive_dc_j"] + trace["e_aux_j"] + trace["e_hidden_j"]
+            + trace["e_battery_loss_j"]).to_numpy(float)
+
+
 def _used_j(trace: pd.DataFrame) -> float:
     """Energy taken by the drive, the loads and the battery's own losses over the day [J]."""
-    end = trace.iloc[-1]
-    return float(end["e_drive_dc_j"] + end["e_aux_j"] + end["e_hidden_j"]
-                 + end["e_battery_loss_j"])
+    return float(_used_series(trace)[-1])
 
 
 def _streams(case: Case) -> list[np.random.SeedSequence]:
@@ -219,9 +223,12 @@ def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]
                        f"(SoC {100 * trace['soc_frac'].min():.1f} %)")
 
 
-def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, dict]:
+def generate(case: Case, current_voltage: bool = False,
+             oracle: bool = False) -> tuple[pd.DataFrame, dict]:
     """The degraded log and the truth record of one case; ``current_voltage``: the log has
-    the pack's current and voltage too (a BMS log), the rest of it unchanged.
+    the pack's current and voltage too (a BMS log), the rest of it unchanged; ``oracle``: it
+    has ``logged_load_kw`` too, the power the hidden effect adds to what the pack supplies
+    (:func:`~benchmarks.truth.degrade.effect_load_kw`), the rest of it unchanged.
 
     The truth record holds ``case_id, source, hidden, expected_verdict`` (the library effect
     the diagnosis should name; None for control days, ``"outside_library"`` for loads the
@@ -251,6 +258,9 @@ def generate(case: Case, current_voltage: bool = False) -> tuple[pd.DataFrame, d
     clean.attrs.update(trace.attrs)
     log = degrade(clean, np.random.default_rng(log_ss), relative_time=case.relative_time,
                   current_voltage=current_voltage)
+    if oracle:
+        log["logged_load_kw"] = effect_load_kw(trace["time_s"].to_numpy(float),
+                                               _used_series(trace) - _used_series(without))
 
     mode = modes(trace)
     hidden_j = float(trace["e_hidden_j"].iloc[-1])

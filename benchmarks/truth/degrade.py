@@ -30,6 +30,9 @@ Degradations, each drawn per day from ``rng``:
   error of up to +-1 %, an offset of up to +-0.5 A and 0.5 A rms noise, in 0.1 A; the pack
   voltage with a gain error of up to +-0.3 % and 0.2 V rms noise, in 0.1 V. Drawn after every
   other degradation, so the rest of a log is the same with and without them.
+
+:func:`effect_load_kw` gives the bench's oracle column: the power a day's hidden effect adds,
+on the log's rows, exactly (a perfect model of the hidden effect, for upper bounds).
 """
 
 from __future__ import annotations
@@ -122,3 +125,14 @@ def degrade(clean: pd.DataFrame, rng: np.random.Generator, *, relative_time: boo
         log["battery_current_a"] = np.round(current, 1)
         log["battery_voltage_v"] = np.round(voltage, 1)
     return pd.DataFrame(log)
+
+
+def effect_load_kw(time_s: np.ndarray, added_j: np.ndarray) -> np.ndarray:
+    """The oracle column ``logged_load_kw`` on the rows of :func:`degrade`'s log: the mean power
+    over each second [kW] of ``added_j``, the energy a hidden effect has added to what the
+    pack supplies by ``time_s`` (the day with the effect against the same day without it).
+    Not degraded: it stands for a perfect model of the effect."""
+    t = np.arange(np.ceil(time_s[0]), np.floor(time_s[-1]) + 1.0)
+    energy = np.interp(t, time_s, added_j)
+    power = np.diff(energy) if len(t) > 1 else np.zeros(0)
+    return np.round(np.append(power, power[-1:] if len(power) else 0.0) / 1e3, 4)

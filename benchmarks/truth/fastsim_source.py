@@ -51,7 +51,7 @@ import pandas as pd
 
 from benchmarks.truth import cases as truthsim
 from benchmarks.truth.days import route_day
-from benchmarks.truth.degrade import degrade
+from benchmarks.truth.degrade import degrade, effect_load_kw
 
 try:
     import fastsim
@@ -449,13 +449,16 @@ def _strength(hidden: str | None, effect: dict, clean: pd.DataFrame) -> dict:
     return truthsim._strength(hidden, effect, clean)
 
 
-def generate(case: truthsim.Case) -> tuple[pd.DataFrame, dict]:
-    """One case: the degraded 1 Hz log and its truth record (the schema of ``cases.py``)."""
-    log, truth, _ = generate_with_clean(case)
+def generate(case: truthsim.Case, oracle: bool = False) -> tuple[pd.DataFrame, dict]:
+    """One case: the degraded 1 Hz log and its truth record (the schema of ``cases.py``);
+    ``oracle``: the log has ``logged_load_kw`` too, the power the hidden effect adds to what
+    the pack gives out (as in ``cases.generate``)."""
+    log, truth, _ = generate_with_clean(case, oracle)
     return log, truth
 
 
-def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.DataFrame]:
+def generate_with_clean(case: truthsim.Case, oracle: bool = False) -> tuple[
+        pd.DataFrame, dict, pd.DataFrame]:
     """:func:`generate`, plus the clean trace (for checks and figures)."""
     require_fastsim()
     hidden = case.hidden
@@ -485,6 +488,10 @@ def generate_with_clean(case: truthsim.Case) -> tuple[pd.DataFrame, dict, pd.Dat
                                                   ("passengers", hidden == "passenger_mass"))
                                 if not keep])
     log = degrade(shown, np.random.default_rng(log_ss), relative_time=case.relative_time)
+    if oracle:
+        log["logged_load_kw"] = effect_load_kw(
+            clean["time_s"].to_numpy(float),
+            np.cumsum(clean["energy_out_j"].to_numpy(float) - without["energy_out_j"].to_numpy(float)))
     km = float(clean["distance_m"].iloc[-1]) / 1e3
     out_j = float(clean["energy_out_j"].sum())
     capacity_j = base["capacity_kwh"] * 3.6e6
