@@ -61,10 +61,10 @@ def line(what: str, value: str, note: str = "") -> None:
     print(f"  {what:58s} {value:>18s}  {note}", flush=True)
 
 
-def bmw_profiles(*trips):
+def bmw_profiles(*trips, columns="bmw_i3_tum"):
     out = []
     for trip in trips:
-        out += load_log(BMW / f"Trip{trip}_1hz.csv", columns="bmw_i3_tum").profiles
+        out += load_log(BMW / f"Trip{trip}_1hz.csv", columns=columns).profiles
     return out
 
 
@@ -160,6 +160,20 @@ def bmw(reserved: bool) -> None:
         line(f"{' + '.join(trips)}: verdict", str(d.verdict), note)
         if d.verdict is None:
             line("", "", d.why)
+    print("\nBMW i3 (model without cabin_hvac), the logged heater power as a load "
+          "(--columns bmw_i3_tum_heater)")
+    for trips in (("B16", "B03"), ("B03",), ("B16",), ("B02",)) + (
+            (("B17",), ("B38",)) if reserved else ()):
+        d = diagnose(bus, bmw_profiles(*trips, columns="bmw_i3_tum_heater"))
+        note = d.why
+        if d.verdict:
+            top = d.ranking[0]
+            (name, value), = top["parameters"].items()
+            low, high = top["interval"][name]
+            note = (f"{100 * top['explained_fraction']:.0f} %; {name} {value:.2f} ({low:.2f} to "
+                    f"{high:.2f}); held-out NRMSE {d.nrmse['before']['held_out']:.4f} -> "
+                    f"{d.nrmse['after']['held_out']:.4f}")
+        line(f"{' + '.join(trips)}: verdict", str(d.verdict), note)
     d = diagnose(load_bus("bmw_i3"), bmw_profiles("B02"))
     for issue in d.data_issues:
         line("B02 data problem", "", issue.get("detail", issue["issue"]))

@@ -298,6 +298,20 @@ def test_bmw_winter_trips_without_heating_name_cabin_heating(bmw_no_heating):
     assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
 
 
+def test_bmw_winter_trips_with_the_logged_heater_as_a_load_name_it(bmw_no_heating):
+    """The heater's CAN power replayed as a load (configs/logs/bmw_i3_tum_heater.yaml): it is
+    what the car model without cabin heating misses, and replaying it at the fitted scale
+    takes most of the held-out error away."""
+    profiles = [p for t in ("B16", "B03") for p in load_log(
+        BMW / f"Trip{t}_1hz.csv", columns="bmw_i3_tum_heater").profiles]
+    d = diagnose(bmw_no_heating, profiles)
+    assert d.verdict == "replayed_load", d.why
+    assert d.ranking[0]["explained_fraction"] > 0.8
+    low, high = d.ranking[0]["interval"]["replayed_load.scale"]
+    assert 1.0 < low <= high < 3.0  # the pack supplies more than the logged heater power
+    assert d.nrmse["after"]["held_out"] < 0.3 * d.nrmse["before"]["held_out"]
+
+
 @pytest.mark.slow
 def test_bmw_trip_b02_capacity_is_a_data_problem():
     d = diagnose(load_bus("bmw_i3"), bmw("B02"))
