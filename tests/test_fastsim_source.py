@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 pytest.importorskip("fastsim", reason="the FASTSim truth source needs fastsim (the 'bench' "
@@ -160,3 +161,14 @@ def test_generate_is_byte_reproducible():
     assert "passengers" not in log_a.columns and "altitude_m" not in log_a.columns
     assert 100.0 <= truth_a["strength"]["cabin_hvac.ua_w_per_k"] <= 1500.0
     assert truth_a["summary"]["hidden_kwh"] > 0.0
+
+
+def test_an_oracle_log_adds_the_hidden_effects_own_power():
+    """``--oracle`` on FASTSim's days: ``logged_load_kw`` adds up to the effect's energy."""
+    heating = next(c for c in fs.cases(1, 0, seed=9) if c.hidden == "cabin_heating")
+    case = dataclasses.replace(heating, hours=1.0)
+    log, truth = fs.generate(case)
+    oracle, _ = fs.generate(case, oracle=True)
+    pd.testing.assert_frame_equal(oracle[log.columns], log)
+    load_kwh = oracle["logged_load_kw"].sum() / 3600.0
+    assert load_kwh == pytest.approx(truth["summary"]["effect_kwh"], rel=0.01, abs=0.002)

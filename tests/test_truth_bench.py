@@ -64,6 +64,19 @@ def test_truth_day_gets_no_wrong_verdict(source, case, tmp_path_factory):
         assert low <= row["energy_kwh"] <= high
 
 
+@pytest.mark.slow
+def test_the_hidden_effects_own_power_is_named_on_an_oracle_day(tmp_path_factory):
+    """``--oracle``: with the grade day's own extra power in the log, replayed as a load, the
+    diagnosis names the grade (the library's form or the replayed power): the day is right."""
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    case = next(c for c in bench.truth_cases("truthsim", smoke=True) if c.hidden == "road_grade")
+    folder = tmp_path_factory.getbasetemp() / "truth-days"
+    folder.mkdir(exist_ok=True)
+    row = bench.diagnose_truth_day(("truthsim", case, str(folder), False, True), ladder=False)
+    assert row["right"] and row["verdict"] in ("road_grade", bench.ORACLE), row["why"]
+
+
 def test_a_part_of_the_bench_is_its_first_days():
     """``--per-effect N --controls M`` runs the whole bench's first N days of each effect and
     first M control days: the same days (same seeds), not a new draw."""

@@ -214,6 +214,21 @@ def test_a_short_case_is_byte_reproducible():
     assert kg == truth_a["physical"]["passenger_mass_kg"] and 65.0 <= kg <= 85.0
 
 
+def test_an_oracle_log_adds_the_hidden_effects_own_power_and_leaves_the_rest_unchanged():
+    """``--oracle``: ``logged_load_kw`` is the power the hidden effect adds, second by second;
+    over the log it adds up to the effect's energy in the truth record."""
+    case = dataclasses.replace(truth_cases.cases(1, 0, effects=("passenger_mass",))[0],
+                               hours=0.4)
+    log, truth = truth_cases.generate(case)
+    oracle, record = truth_cases.generate(case, oracle=True)
+    assert record["columns"] == truth["columns"] + ["logged_load_kw"]
+    assert {**record, "columns": truth["columns"]} == truth
+    pd.testing.assert_frame_equal(oracle[log.columns], log)
+    load_kwh = oracle["logged_load_kw"].sum() / 3600.0
+    assert load_kwh == pytest.approx(truth["summary"]["effect_kwh"], rel=0.01, abs=0.002)
+    assert oracle["logged_load_kw"].min() < 0.0 < oracle["logged_load_kw"].max()  # regen too
+
+
 def test_case_list_covers_every_effect_and_keeps_clock_bound_logs_stamped():
     listed = truth_cases.cases()
     by_effect = pd.Series([c.hidden or "control" for c in listed]).value_counts()
