@@ -371,16 +371,18 @@ def figures(rows) -> dict:
 
 
 def oracle_table(rows) -> None:
-    """Per hidden effect: the days named right when the log also carries the effect's own
-    power (by the library's effect or by that power, :data:`ORACLE`), and the held-out NRMSE
-    fall with the effect in that perfect form added: bounds for what a better form of the
-    library's effect could reach on these days."""
+    """Per hidden effect (the library's effect it should be named as; a load outside the
+    library by its own name): the days named right when the log also carries the effect's
+    own power (named as the library's effect or as that power, :data:`ORACLE`), and the
+    held-out NRMSE fall with the effect in that perfect form added: bounds for what a better
+    form of the library's effect could reach on these days."""
     print(f"\nWith the hidden effect in a perfect form ({ORACLE} of the logged effect power)")
-    line("hidden effect (source)", "named right", "of them by its perfect form; held-out "
+    line("hidden effect (source)", "named right", "of them by its perfect form alone; held-out "
          "NRMSE fall with it added (median)")
     groups: dict = {}
     for r in rows:
-        groups.setdefault((r["hidden"], r["source"]), []).append(r)
+        effect = r["hidden"] if r["expected"] == "outside_library" else r["expected"]
+        groups.setdefault((effect, r["source"]), []).append(r)
     for (effect, source), group in sorted(groups.items()):
         right = [r for r in group if r["right"]]
         fall = np.nanmedian([r.get("fall", float("nan")) for r in group])
