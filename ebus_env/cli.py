@@ -556,7 +556,9 @@ def diagnose(
         "--soc-only", help="Diagnose from SoC alone where the log has battery current and "
         "voltage too (see docs/validation.md: run both)")] = False,
     config: Annotated[str | None, typer.Option(
-        help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml)")] = None,
+        help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml): its "
+             "params free in place of the paper's, its ranges, fixed values and iSOPT "
+             "settings")] = None,
     seed: Annotated[int, typer.Option(help="Random seed of iSOPT")] = 0,
     columns: Annotated[str | None, typer.Option(help="Column map preset, e.g. bmw_i3_tum")]
     = None,
@@ -565,7 +567,9 @@ def diagnose(
     no_unit_check: Annotated[bool, typer.Option("--no-unit-check",
                                                 help="Skip the unit checks")] = False,
     start_time: StartOpt = None,
-    set_: SetOpt = None,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="A known parameter value, effect.param=value (repeatable): held in "
+                      "--calibrate and --add")] = None,
 ):
     """Where the model fails against measurements, and which effect is missing.
 
@@ -583,6 +587,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
 
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.diagnostics import diagnose as run_diagnosis
+    from ebus_env.diagnostics.ladder import Freedom
     from ebus_env.diagnostics.report import console_tables
     from ebus_env.errors import LogError
     from ebus_env.inputs import check
@@ -619,7 +624,8 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
         result = run_diagnosis(bus, profiles, calibrate=calibrate, add=_split(add),
                                window_s=window_s, settings=replace(cfg.isopt, seed=seed),
                                polish_starts=cfg.polish_starts, loader_notes=notes,
-                               progress=lambda text: status.update(text))
+                               progress=lambda text: status.update(text),
+                               freedom=Freedom.of(cfg, overrides))
     for table in console_tables(result):
         console.print(table)
     style = "bold green" if result.verdict else "bold"

@@ -109,3 +109,30 @@ def test_load_categories(tmp_path):
     assert figures["full"] > figures["driver"]
     code, out = invoke("simulate", "--load", "heavy")
     assert code == 2 and "driver, half, full" in out
+
+
+def test_diagnose_holds_what_the_user_knows_and_frees_what_their_config_frees(tmp_path):
+    """``ebus diagnose --calibrate``: a ``--set`` value and a config's fixed value are held
+    (reported as such, left out of the fit), the config's params replace the paper's, and a
+    config range for a parameter the calibration does not free fails by its name."""
+    log = ROOT / "data/measured/hidden/control.csv.gz"
+    config = tmp_path / "known.yaml"
+    config.write_text("params: [regen_cutoff.max_decel_mps2]\n"
+                      "ranges: {regen_cutoff.max_decel_mps2: [1.0, 5.0]}\n"
+                      "fixed: {static_rcd.rcd_frac: 0.05}\n"
+                      "isopt: {iterations: 2}\npolish_starts: 0\n")
+    code, out = invoke("diagnose", log, "--calibrate", "--config", config,
+                       "--set", "rint_battery.cell_capacity_ah=90", "--json", tmp_path / "r.json")
+    assert code == 0, out
+    calibration = json.loads((tmp_path / "r.json").read_text())["calibration"]
+    assert calibration["fixed"] == {"static_rcd.rcd_frac": 0.05,
+                                    "rint_battery.cell_capacity_ah": 90.0}
+    assert set(calibration["params"]) == {
+        "regen_cutoff.max_decel_mps2", "vehicle_body.curb_mass_kg",
+        "rolling_resistance.rolling_coef", "auxiliaries.base_power_w",
+        "efficiency_map.gearbox_efficiency", "rint_battery.cell_resistance_mohm"}
+    assert 1.0 <= calibration["params"]["regen_cutoff.max_decel_mps2"] <= 5.0
+    config.write_text("ranges: {static_rcd.rcd_frac: [0.0, 0.1]}\n"
+                      "fixed: {static_rcd.rcd_frac: 0.05}\n")
+    code, out = invoke("diagnose", log, "--calibrate", "--config", config)
+    assert code == 2 and "static_rcd.rcd_frac" in out and "not a free parameter" in out

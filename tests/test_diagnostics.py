@@ -470,6 +470,43 @@ def test_calibration_on_blocks_scores_only_its_blocks():
         10 * 3600, abs=20)
 
 
+def test_what_a_user_knows_is_held_and_what_they_free_is_fitted():
+    """A calibration config (or ``--set``) says what a user knows of the bus. A fixed pack
+    capacity keeps its value through the calibration and the runs after it (held 30 % low,
+    the fit is six times worse than held at the truth); a parameter the user frees, the brake
+    blending limit, is fitted within the user's range in place of the paper's parameters,
+    with the bus-to-bus ones; a range for a parameter not free fails by its name."""
+    from ebus_env.calibration import ISOPTSettings
+    from ebus_env.diagnostics.ladder import Freedom, calibrate_rung
+    from ebus_env.errors import ConfigError
+
+    case = hidden.case("control")
+    profiles = hidden_log(case.name)
+    bus = hidden.baseline_bus(case)
+    model = bus.build(profiles[0].dt_s)
+    blocks = split_blocks(profiles)
+    quick = ISOPTSettings(iterations=2)
+    cap = "rint_battery.cell_capacity_ah"
+    truth = model.params[model.param_index(cap)]
+    nrmse = {}
+    for value in (truth, 0.7 * truth):
+        freedom = Freedom(params=("regen_cutoff.max_decel_mps2",),
+                          ranges={"regen_cutoff.max_decel_mps2": (1.0, 5.0)}, fixed={cap: value})
+        rung = calibrate_rung(bus, [], profiles, *blocks, profiles[0].dt_s, quick, 0,
+                              model=model, freedom=freedom)
+        free = rung.calibration_result.free
+        assert cap not in free and rung.values[cap] == value
+        assert "regen_cutoff.max_decel_mps2" in free and "vehicle_body.curb_mass_kg" in free
+        assert "cccv_taper.cv_soc_pct" not in free
+        assert 1.0 <= rung.values["regen_cutoff.max_decel_mps2"] <= 5.0
+        nrmse[value] = rung.calibration["nrmse"]
+    assert nrmse[0.7 * truth] > 5 * nrmse[truth]
+    with pytest.raises(ConfigError, match="static_rcd.rcd_frac"):
+        calibrate_rung(bus, [], profiles, *blocks, profiles[0].dt_s, quick, 0, model=model,
+                       freedom=Freedom(ranges={"static_rcd.rcd_frac": (0.0, 0.1)},
+                                       fixed={"static_rcd.rcd_frac": 0.05}))
+
+
 def test_the_explained_line_is_the_fit_with_the_calibrated_parameters_moving_back():
     """After a calibration a parameter has absorbed most of the effect: the missing power is
     small, and the effect's part alone lies far from it. The plotted fit must include the

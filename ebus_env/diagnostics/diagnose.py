@@ -24,6 +24,7 @@ from ebus_env.diagnostics.candidates import (
     parameter_candidates,
 )
 from ebus_env.diagnostics.ladder import (
+    Freedom,
     Rung,
     as_effect,
     calibrate_rung,
@@ -395,7 +396,8 @@ class Fits:
 
 
 def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_name: dict,
-                 add: Sequence, first_rung, blocks, settings, polish_starts, say) -> Fits:
+                 add: Sequence, first_rung, blocks, settings, polish_starts, say,
+                 freedom: Freedom | None = None) -> Fits:
     """Held-out NRMSE of the model before, and after the verdict's effect (or the error
     ladder of ``add``), each re-calibrated."""
     dt_s = profiles[0].dt_s
@@ -413,7 +415,8 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
         say("error ladder")
         ladder = error_ladder(bus, profiles, add, dt_s, settings, polish_starts, first_rung,
                               blocks, progress=lambda n: say(f"calibrating {n}"),
-                              estimates={verdict: found.estimate} if verdict else None)
+                              estimates={verdict: found.estimate} if verdict else None,
+                              freedom=freedom)
         after_model, after_values = ladder[-1].model, ladder[-1].values
         nrmse["after_is"] = f"the last rung of the error ladder ({ladder[-1].label})"
     elif verdict is not None:
@@ -425,7 +428,8 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
             say(f"re-fitting with {verdict}")
             local = replace(settings or ISOPTSettings(), iterations=0)
             rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
-                                  1, f"+ {verdict}", start=after_values, model=best.model)
+                                  1, f"+ {verdict}", start=after_values, model=best.model,
+                                  freedom=freedom)
             after_values = rung.values
             nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
     if first_rung is not None and not ladder:
@@ -445,13 +449,14 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
 def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
              add: Sequence = (), window_s: float | None = None, settings=None,
              polish_starts: int | None = None, loader_notes: Sequence[str] = (),
-             progress=None) -> Diagnosis:
+             progress=None, freedom: Freedom | None = None) -> Diagnosis:
     """Diagnose ``bus`` against measured ``profiles`` (see the module docstring), in four
     stages that share the models they build: residual, candidates, attribution, ladder.
 
     ``calibrate`` fits the paper's parameters on the calibration blocks first (see
     :mod:`ebus_env.diagnostics.ladder`); ``add`` lists effects for the error ladder (each
-    added and re-calibrated in turn).
+    added and re-calibrated in turn). ``freedom`` changes what the calibrations fit and holds
+    known values (calibrated or not).
     """
     say = progress or (lambda text: None)
     timings: dict[str, float] = {}
@@ -464,12 +469,13 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     if calibrate or add:
         say("calibrating the model as given")
         first_rung = calibrate_rung(bus, [], profiles, *blocks, dt_s, settings, polish_starts,
-                                    model=model)
+                                    model=model, freedom=freedom)
         timings["calibration_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    res = residual_stage(model, profiles, first_rung.values if first_rung else {}, window_s,
-                         loader_notes)
+    known = (freedom or Freedom()).on(model).fixed
+    res = residual_stage(model, profiles, first_rung.values if first_rung else dict(known),
+                         window_s, loader_notes)
     timings["residual_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
@@ -487,7 +493,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
 
     t1 = time.perf_counter()
     fits = ladder_stage(bus, res, profiles, found, by_name, add, first_rung, blocks, settings,
-                        polish_starts, say)
+                        polish_starts, say, freedom)
     timings["fit_s"] = time.perf_counter() - t1
     timings["total_s"] = time.perf_counter() - t0
     return Diagnosis(
@@ -498,7 +504,8 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
         selected=found.selected, set_aside=aside, modes=found.modes, bins=found.bins,
         worst_windows=found.worst, clues=found.clues, data_issues=res.issues,
         excluded_windows=res.excluded, nrmse=fits.nrmse,
-        calibration=first_rung.calibration_result.to_json() if first_rung else None,
+        calibration={**first_rung.calibration_result.to_json(), "fixed": known}
+        if first_rung else None,
         ladder=fits.ladder, timings=timings, windows=res.windows, missing_w=res.missing_w,
         noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
         after_runs=fits.after_runs, anchored=res.anchored,

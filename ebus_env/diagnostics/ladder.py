@@ -8,11 +8,13 @@ model as given, calibrated; each further rung adds one effect and calibrates aga
 paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`; :data:`RESOLVED_BY_POWER`
 too on logs of battery power) and the new effects' strength parameters free together,
 starting from the rung before (and the diagnosis's estimate of the effect's strength, when it
-has one).
+has one). A :class:`Freedom` changes that choice as a calibration config does: other free
+parameters in place of the paper's, narrower or wider search ranges, known values held.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,6 +48,40 @@ to a few per cent, and a share left at its configured value leaves a braking-sha
 that the regen limit at high SoC takes for itself (it was named so on control days of the
 independent truth simulator, docs/validation.md); on a SoC log the share and such a limit
 cannot be told apart, and the share keeps its configured value."""
+
+
+@dataclass(frozen=True)
+class Freedom:
+    """What the diagnosis's calibrations fit, where a user knows better than the defaults (the
+    ``params``, ``ranges`` and ``fixed`` of a calibration config, ``ebus diagnose --set``):
+    ``params`` in place of the paper's parameters (the bus-to-bus ones stay free), search
+    ``ranges`` in place of the bus-to-bus ones' (within the declared bounds), and ``fixed``
+    values, known and held: left out of every calibration and of the parameters that move
+    back in an attribution."""
+
+    params: tuple[str, ...] | None = None
+    ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    categorical_load: bool = False
+
+    @classmethod
+    def of(cls, config, fixed: Mapping[str, float] | None = None) -> Freedom:
+        """From a :class:`~ebus_env.calibration.settings.CalibrationConfig`, with ``fixed``
+        (``--set``) added to its known values."""
+        return cls(tuple(config.params) if config.params else None, dict(config.ranges),
+                   {**config.fixed, **(fixed or {})}, config.categorical_load)
+
+    def on(self, model) -> Freedom:
+        """The names as ``model`` has them (a refinement in a slot keeps its parameters under
+        its own name: ``regen_soc_limit.cutoff_speed_mps``)."""
+        def name(n):
+            return model.equivalent(n) or n
+
+        return Freedom(None if self.params is None else tuple(map(name, self.params)),
+                       {name(k): v for k, v in self.ranges.items()},
+                       {name(k): v for k, v in self.fixed.items()}, self.categorical_load)
+
+
 BLOCK_S = 3600.0
 MIN_BLOCKS = 4
 SCAN = 11
@@ -147,46 +183,51 @@ def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, h
                    dt_s: float,
                    settings=None, polish_starts: int | None = None, label: str = "as given",
                    free: list[str] | None = None, start: dict | None = None,
-                   model=None) -> Rung:
+                   model=None, freedom: Freedom | None = None) -> Rung:
     """Calibrate ``bus`` (with ``added`` effects already in it) on the calibration blocks of
     ``profiles``: by default the paper's parameters, the bus-to-bus ones (:data:`NUISANCE`,
     and :data:`RESOLVED_BY_POWER` on logs of battery power, in their ranges) and the added
-    effects' strength parameters are free together. The search starts from ``start`` (values
-    by name) and from the bus's configured values, each with the last added effect's strength
-    scanned (:func:`strength_scan`). ``model`` is the bus's model when already built."""
+    effects' strength parameters are free together, as ``freedom`` changes them. The search
+    starts from ``start`` (values by name) and from the bus's configured values, each with the
+    last added effect's strength scanned (:func:`strength_scan`). ``model`` is the bus's model
+    when already built. The rung's values include the fixed ones."""
     model = model or bus.build(dt_s)
-    ranges = nuisance_ranges(model, profiles)
+    known = (freedom or Freedom()).on(model)
+    nuisance = nuisance_ranges(model, profiles)
     if free is None:
-        free = paper_params(model) + list(ranges)
-        for eff in added:
-            free += [f"{eff.name}.{p}" for p in eff.strength_params if
-                     f"{eff.name}.{p}" not in free]
-    ranges = {k: v for k, v in ranges.items() if k in free}
+        strengths = [f"{eff.name}.{p}" for eff in added for p in eff.strength_params]
+        free = list(dict.fromkeys([*(known.params or paper_params(model)), *nuisance,
+                                   *strengths]))
+    free = [n for n in free if n not in known.fixed]
+    # a user's range for a parameter left out fails in the calibration, by its name
+    ranges = {**{k: v for k, v in nuisance.items() if k in free}, **known.ranges}
     starts = [model.carry_over(start or {}), {}]  # the rung before, the configured values
     if added and added[-1].strength_params:
-        problem = CalibrationProblem(model, profiles, free, ranges, blocks=cal)
+        problem = CalibrationProblem(model, profiles, free, ranges, known.fixed, blocks=cal)
         starts = strength_scan(problem, model, added[-1], starts)
-    result = calibrate(model, profiles, free=free, bounds=ranges, settings=settings,
-                       validate=profiles, polish_starts=polish_starts, start=starts, blocks=cal,
-                       validate_blocks=held)
-    return Rung(label, [e.name for e in added], dict(result.values), result.fit,
+    result = calibrate(model, profiles, free=free, bounds=ranges, fixed=known.fixed,
+                       settings=settings, validate=profiles, polish_starts=polish_starts,
+                       start=starts, blocks=cal, validate_blocks=held,
+                       categorical_load=known.categorical_load)
+    return Rung(label, [e.name for e in added], {**known.fixed, **result.values}, result.fit,
                 result.validation, result, model)
 
 
 def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None,
                  polish_starts: int | None = None, first: Rung | None = None,
                  blocks: tuple[Blocks, Blocks] | None = None, progress=None,
-                 estimates: dict | None = None) -> list[Rung]:
+                 estimates: dict | None = None, freedom: Freedom | None = None) -> list[Rung]:
     """Rung 0 (``first`` when already calibrated) and one rung per effect in ``add`` (names,
-    ``file.py:Name`` or Effect objects), each added to the ones before and calibrated;
-    ``estimates`` maps an effect's name to starting values of its parameters."""
+    ``file.py:Name`` or Effect objects), each added to the ones before and calibrated (as
+    ``freedom`` says); ``estimates`` maps an effect's name to starting values of its
+    parameters."""
     cal, held = blocks or split_blocks(profiles)
     rungs = [first] if first is not None else []
     if not rungs:
         if progress:
             progress("as given")
         rungs.append(calibrate_rung(bus, [], profiles, cal, held, dt_s, settings,
-                                    polish_starts))
+                                    polish_starts, freedom=freedom))
     added: list[Effect] = []
     for item in add:
         eff = as_effect(item)
@@ -196,7 +237,8 @@ def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None
             progress(f"+ {eff.name}")
         start = {**rungs[-1].values, **(estimates or {}).get(eff.name, {})}
         rungs.append(calibrate_rung(bus, list(added), profiles, cal, held, dt_s, settings,
-                                    polish_starts, label=f"+ {eff.name}", start=start))
+                                    polish_starts, label=f"+ {eff.name}", start=start,
+                                    freedom=freedom))
     return rungs
 
 
