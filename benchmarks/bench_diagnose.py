@@ -36,6 +36,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -356,6 +357,10 @@ def figures(rows) -> dict:
         # the clue is right when it names a mode that takes >= 25 % of the load's energy
         "outside": share([r for r in outside if r["status"] == "outside library"
                           and r["clue"] in r["outside_modes"]], outside),
+        # a clue on a day with nothing hidden: where the calibrated bus itself misses power,
+        # what a clue on an outside-library day must stand out of
+        "control_clue": share([r for r in control if r["clue"]], control),
+        "control_modes": Counter(r["clue"] for r in control if r["clue"]).most_common(),
         "fall": {k: float(np.nanmedian(v)) for k, v in falls.items()},
         "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
                            <= BARS["strength"]], shared),
@@ -444,6 +449,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
          f"bar <= 5 %; {f['false_alarms'][1]} days")
     line("outside library: 'no library effect' + right mode", f"{100 * f['outside'][0]:.0f} %",
          f"bar >= 80 %; {f['outside'][1]} days")
+    line("control days whose report names a mode all the same", f"{100 * f['control_clue'][0]:.0f} %",
+         ", ".join(f"{mode} {n}" for mode, n in f["control_modes"]) or "none")
     for effect, fall in sorted(f["fall"].items()):
         line(f"held-out NRMSE fall, + {effect} (median)", f"{100 * fall:.0f} %", "bar >= 50 %")
     line("strength within +-25 % (named right)", f"{100 * f['strength'][0]:.0f} %",
