@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_diagnose as bench  # noqa: E402
-from bench_diagnose import ORACLE, truth_cases, truth_day  # noqa: E402
+from bench_diagnose import ORACLE, named_right, truth_cases, truth_day  # noqa: E402
 
 from ebus_env.diagnostics import attribution  # noqa: E402
 
@@ -72,7 +72,7 @@ def capture(job) -> Path:
 
     from ebus_env.config import load_bus
     from ebus_env.diagnostics.candidates import effect_candidates, estimate_strength
-    from ebus_env.diagnostics.ladder import calibrate_rung, in_blocks, split_blocks
+    from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks, windows_in
 
     stages = importlib.import_module("ebus_env.diagnostics.diagnose")  # the module, not the function
     source, case, days, cache = job
@@ -97,8 +97,7 @@ def capture(job) -> Path:
                      if any(c.name == n for c in candidates))
     moving = np.column_stack([c.signature_w for n in nuisance for c in candidates
                               if c.name == n]) if nuisance else None
-    in_cal = np.array([in_blocks(blocks[0], k, np.array([s]))[0] for k, s in
-                       zip(res.windows.profile_index, res.windows.start_step, strict=True)])
+    in_cal = windows_in(blocks[0], res.windows)
     fit = res.usable & in_cal
     implausible = {}
     for c, on in [(c, profiles) for c in candidates if c.kind != "parameter"] + oracle:
@@ -148,12 +147,10 @@ def decide(job) -> tuple[str, str | None, str]:
     if verdict is not None and r["implausible"].get(verdict):
         verdict, status = None, "implausible"
     expected = r["expected"]
-    right = {ORACLE} if expected == "outside_library" else {expected, ORACLE}
     effects = [a.name for a in d.ranking if a.kind != "parameter"]
-    tied = set(effects[:2]) if status == "tie" else set()
     if expected is None:
         label = "control named" if verdict else "control quiet"
-    elif verdict in right or (oracle and tied == right and expected != "outside_library"):
+    elif named_right(expected, verdict, status, effects, oracle):
         label = "right"
     elif verdict is None:
         label = "abstained"

@@ -268,6 +268,18 @@ def truth_day(source: str, case, folder: Path, current_voltage: bool = False,
     return load_log(log_path).profiles, json.loads(truth_path.read_text())
 
 
+def named_right(expected, verdict: str | None, status: str, effects: list[str],
+                oracle: bool) -> bool:
+    """Whether a day's verdict is right: the expected effect (None on a control day: no
+    verdict); on an oracle day also :data:`ORACLE`, the only right one for a load outside the
+    library, or a tie of the library's effect and its perfect form (``effects``: the effect
+    candidates, best first)."""
+    right = {ORACLE} if oracle and expected == "outside_library" else \
+        {expected, ORACLE} if oracle else {expected}
+    tied = set(effects[:2]) if status == "tie" else set()
+    return verdict in right or (oracle and tied == {expected, ORACLE})
+
+
 def diagnose_truth_day(job, ladder: bool = True) -> dict:
     """Diagnose one truth day, calibrated, and (``ladder``) add the right effect and
     re-calibrate (worker of the pool). On an oracle day (the log carries the hidden effect's
@@ -297,11 +309,8 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
            / 3600.0, "why": d.why}
     expected = truth["expected_verdict"]
-    right = {ORACLE} if oracle and expected == "outside_library" else \
-        {expected, ORACLE} if oracle else {expected}
-    tied = {r["effect"] for r in d.ranking[:2]} if d.status == "tie" else set()
-    # on an oracle day a tie of the library's effect and its perfect form names the effect
-    row["right"] = d.verdict in right or (oracle and tied == {expected, ORACLE})
+    row["right"] = named_right(expected, d.verdict, d.status,
+                               [r["effect"] for r in d.ranking], oracle)
     # the right effect: the library's, or for a load it lacks the user's own file; on an
     # oracle day the hidden effect's own power
     row["added"] = ORACLE if oracle else (

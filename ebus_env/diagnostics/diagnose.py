@@ -30,8 +30,8 @@ from ebus_env.diagnostics.ladder import (
     calibrate_rung,
     error_ladder,
     fit_on_blocks,
-    in_blocks,
     split_blocks,
+    windows_in,
 )
 from ebus_env.units import with_unit
 
@@ -324,8 +324,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                                     decision.status)
     by_name = {c.name: c for c in candidates}
     weight = attribution.weights(res.noise_w)
-    in_cal = np.array([in_blocks(blocks[0], k, np.array([s]))[0] for k, s in
-                       zip(w.profile_index, w.start_step, strict=True)], bool)
+    in_cal = windows_in(blocks[0], w)
     fit = res.usable & in_cal
     strength, verdict_w = Strength({}, {}), None
     modes, bins = _breakdowns(res.anchored, w, res.missing_w, res.noise_w, res.usable)

@@ -117,6 +117,12 @@ def in_blocks(blocks: Blocks, k: int, rows: np.ndarray) -> np.ndarray:
     return np.asarray(blocks.scored[k])[which]
 
 
+def windows_in(blocks: Blocks, windows) -> np.ndarray:
+    """Whether each of a diagnosis's ``windows`` starts in a block ``blocks`` scores."""
+    return np.array([in_blocks(blocks, k, np.array([s]))[0] for k, s in
+                     zip(windows.profile_index, windows.start_step, strict=True)], bool)
+
+
 @dataclass
 class Rung:
     """One step of the ladder."""
