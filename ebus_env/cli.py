@@ -599,6 +599,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     cfg = load_calibration_config(config)
     bus = choice.load()
     overrides = _overrides(set_)
+    bus.build().param_vector(overrides)  # unknown names and values outside bounds fail here
     if overrides:  # as an overlay, so that every model the diagnosis builds has them
         params: dict = {}
         for key, value in overrides.items():
@@ -608,7 +609,6 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
                    choice.files(bus) + _inputs(logs, [_config_file(config)], effects=add))
     model = bus.build()
-    model.param_vector(overrides)  # unknown names and values outside bounds fail here
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)
     if soc_only:

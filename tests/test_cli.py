@@ -74,6 +74,10 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     assert code == 2 and "Duplicated times" in out and "row 1" in out
     code, out = invoke("simulate", "--set", "aero_drag.drag_coef=9")
     assert code == 2 and "outside its bounds" in out
+    # a known value out of range is the user's value, not the bus config's
+    log = ROOT / "data/measured/hidden/control.csv.gz"
+    code, out = invoke("diagnose", log, "--set", "rint_battery.cell_capacity_ah=-5")
+    assert code == 2 and "cell_capacity_ah' = -5.0 (override) lies outside" in out, out
 
 
 def test_unit_check_names_its_switch_and_the_switch_turns_it_off(tmp_path):
