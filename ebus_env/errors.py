@@ -90,9 +90,11 @@ def did_you_mean(name: str, choices: Iterable[str]) -> str:
     return f" Did you mean '{match[0]}'?" if match else ""
 
 
-def unknown_name(kind: str, name: str, choices: Iterable[str]) -> ConfigError:
-    """Error for an unknown name, with the closest match and the valid choices."""
+def unknown_name(kind: str, name: str, choices: Iterable[str], listed_by: str = "") -> ConfigError:
+    """Error for an unknown name, with the closest match and the valid choices (or, when too
+    many to list, their number and the command ``listed_by`` that lists them)."""
     choices = sorted(choices)
     hint = did_you_mean(name, choices)
-    listing = ", ".join(choices) if len(choices) <= 30 else f"{len(choices)} names"
+    listing = ", ".join(choices) if len(choices) <= 30 else \
+        f"{len(choices)} names" + (f", listed by {listed_by}" if listed_by else "")
     return ConfigError(f"Unknown {kind} '{name}'.{hint} Valid: {listing}.")

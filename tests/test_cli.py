@@ -80,7 +80,7 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     assert code == 2 and "cell_capacity_ah' = -5.0 (override) lies outside" in out, out
     code, out = invoke("diagnose", log, "--set", "rint_battery.capacity_ah=90")
     assert code == 2 and "Did you mean 'rint_battery.cell_capacity_ah'" in out, out
-    assert "ebus effects --bus" in out  # the 65 names, too many for the message
+    assert "listed by `ebus effects --bus NAME`" in out  # 65 names, too many to list
 
 
 def test_unit_check_names_its_switch_and_the_switch_turns_it_off(tmp_path):

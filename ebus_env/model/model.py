@@ -113,10 +113,8 @@ class Model:
 
     def param_index(self, name: str) -> int:
         if name not in self._param_index:
-            error = unknown_name("parameter", name, self.param_names)
-            if len(self.param_names) > 30:  # too many to list: say where to read them
-                error = ConfigError(f"{error} List them with `ebus effects --bus NAME`.")
-            raise error
+            raise unknown_name("parameter", name, self.param_names,
+                               listed_by="`ebus effects --bus NAME`")
         return self._param_index[name]
 
     def handle(self, name: str) -> int:
