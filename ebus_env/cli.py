@@ -570,6 +570,10 @@ def diagnose(
     set_: Annotated[list[str] | None, typer.Option(
         "--set", help="A known parameter value, effect.param=value (repeatable): held in "
                       "--calibrate and --add")] = None,
+    reference: Annotated[list[Path] | None, typer.Option(
+        help="A log of a normal day of the same bus (repeatable): calibrated first, the "
+             "diagnosis then says what the day misses beyond it (implies --calibrate)")]
+    = None,
 ):
     """Where the model fails against measurements, and which effect is missing.
 
@@ -578,11 +582,11 @@ def diagnose(
         logs, BusChoice(bus, with_, without, overlay),
         LogHandling(columns, gaps, fill, not no_unit_check, start_time), calibrate=calibrate, add=add,
         html=html, json_path=json_path, window_s=window_s, config=config, seed=seed, set_=set_,
-        soc_only=soc_only))
+        soc_only=soc_only, reference=reference))
 
 
 def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add, html, json_path,
-              window_s, config, seed, set_, soc_only=False):
+              window_s, config, seed, set_, soc_only=False, reference=None):
     from dataclasses import replace
 
     from ebus_env.calibration.settings import load_calibration_config
@@ -607,15 +611,19 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
             params.setdefault(effect_name, {})[param] = value
         bus = bus.overlay({"params": params}, "--set")
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
-                   choice.files(bus) + _inputs(logs, [_config_file(config)], effects=add))
+                   choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],
+                                               effects=add))
     model = bus.build()
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)
+    normal = _load_logs(reference, model, model.params, handling, console) \
+        if reference else []
     if soc_only:
         from ebus_env.diagnostics.residual import POWER_SIGNALS
 
         profiles = [p.without_measured(*POWER_SIGNALS) for p in profiles]
-    without_soc = sorted({p.name for p in profiles if "soc_frac" not in p.measured})
+        normal = [p.without_measured(*POWER_SIGNALS) for p in normal]
+    without_soc = sorted({p.name for p in [*profiles, *normal] if "soc_frac" not in p.measured})
     if without_soc:
         raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "
                        f"{', '.join(without_soc)} have none", fix="give logs with a soc_pct "
@@ -625,7 +633,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
                                window_s=window_s, settings=replace(cfg.isopt, seed=seed),
                                polish_starts=cfg.polish_starts, loader_notes=notes,
                                progress=lambda text: status.update(text),
-                               freedom=Freedom.of(cfg, overrides))
+                               freedom=Freedom.of(cfg, overrides), reference=normal or None)
     for table in console_tables(result):
         console.print(table)
     style = "bold green" if result.verdict else "bold"

@@ -524,6 +524,81 @@ def test_the_explained_line_is_the_fit_with_the_calibrated_parameters_moving_bac
     assert np.sqrt(np.mean((top.fit_w - y) ** 2)) < 300  # the fit: within the noise
 
 
+def test_a_reference_days_gap_per_mode_is_taken_off_and_its_values_bound_the_search():
+    """The reference measures what a normal day misses in each operating mode, with its
+    covariance; a suspect window is expected to miss the same per mode (its share of each),
+    uncertain by s C s^T. Bus-to-bus values are searched within 10 % of the reference's (the
+    auxiliary base load within 1 kW), inside their bounds; a user's fixed value stays."""
+    from ebus_env.diagnostics.ladder import Freedom
+    from ebus_env.diagnostics.reference import Reference
+    from ebus_env.diagnostics.residual import MODES, decompose
+
+    rng = np.random.default_rng(5)
+    n = 400
+    share = rng.dirichlet(np.ones(4), n)  # accelerating, cruising, braking, idle
+    share = np.column_stack([share, np.zeros((n, 2))])  # never charging
+    gap = np.array([3000.0, -1000.0, 6000.0, 500.0, np.nan, np.nan])
+    noise = np.full(n, 400.0)
+    missing = share[:, :4] @ gap[:4] + rng.normal(0.0, 400.0, n)
+    p, cov = decompose(missing, noise, share, covariance=True)
+    _, se = decompose(missing, noise, share)
+    assert np.isnan(p[4:]).all() and np.isnan(cov[4:, :]).all()
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)[:4]), se[:4])
+    assert np.all(np.abs(p[:4] - gap[:4]) < 4 * se[:4])
+    ref = Reference(["normal.csv"], {"vehicle_body.curb_mass_kg": 13500.0,
+                                     "auxiliaries.base_power_w": 500.0,
+                                     "rint_battery.cell_capacity_ah": 200.0}, p, cov, 0.01)
+    # the same bus on another day: the gap is taken off, what is left is noise
+    other = rng.dirichlet(np.ones(4), n)
+    other = np.column_stack([other, np.zeros((n, 2))])
+    expected, expected_se = ref.expected_w(other)
+    left = other[:, :4] @ gap[:4] + rng.normal(0.0, 400.0, n) - expected
+    assert abs(np.mean(left)) < 3 * 400.0 / np.sqrt(n) + np.mean(expected_se)
+    np.testing.assert_allclose(expected_se[0], np.sqrt(other[0][:4] @ cov[:4, :4] @ other[0][:4]))
+    assert ref.to_json()["missing_by_mode"][2] == pytest.approx(
+        {"mode": MODES[2], "missing_kw": p[2] / 1e3, "stderr_kw": se[2] / 1e3})
+    model = load_bus("12m").build()
+    freedom = ref.freedom(model, Freedom(fixed={"rint_battery.cell_capacity_ah": 180.0}))
+    # 13500 +- 10 %, cut at the parameter's upper bound (14.5 t); 500 W +- 1 kW, cut at 0
+    assert freedom.ranges["vehicle_body.curb_mass_kg"] == pytest.approx((12150.0, 14500.0))
+    assert freedom.ranges["auxiliaries.base_power_w"] == (0.0, 1500.0)
+    assert "rint_battery.cell_capacity_ah" not in freedom.ranges
+    assert freedom.fixed == {"rint_battery.cell_capacity_ah": 180.0}
+
+
+@pytest.mark.slow
+def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_named(tmp_path):
+    """``ebus diagnose --reference``: the cold day with its cabin heated against the normal day
+    of the same bus. The bus-to-bus values are searched within 10 % of the normal day's (the
+    auxiliary base load within 1 kW), the cabin is still named near its strength, and the report
+    holds the normal day's values and its missing power per mode."""
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+    from ebus_env.diagnostics.reference import REFERENCE_AUX_SPAN_W, REFERENCE_SPAN
+
+    log, normal = (hidden.OUT_DIR / f"{name}.csv.gz" for name in ("cabin_heating", "control"))
+    out = tmp_path / "report.json"
+    result = CliRunner().invoke(app, ["diagnose", str(log), "--bus", "12m", "--without",
+                                      "cabin_hvac", "--reference", str(normal), "--json",
+                                      str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    reference = report["reference"]
+    assert reference["logs"] == ["control.csv"]
+    assert {m["mode"] for m in reference["missing_by_mode"]} >= {"accelerating", "idle"}
+    assert len(reference["values"]) == 6
+    fitted = report["calibration"]["params"]
+    for name, value in reference["values"].items():
+        span = REFERENCE_AUX_SPAN_W if name.endswith("base_power_w") \
+            else REFERENCE_SPAN * value
+        assert abs(fitted[name] - value) <= span * (1 + 1e-9), name
+    assert report["verdict"] == "cabin_hvac"  # within the +-25 % asked of a verdict's strength
+    assert report["ranking"][0]["parameters"]["cabin_hvac.ua_w_per_k"] == pytest.approx(
+        450.0, rel=0.25)
+    assert "beyond the reference day (control.csv)" in " ".join(result.output.split())
+
+
 @pytest.mark.slow
 def test_on_a_bms_log_the_calibration_fits_the_buss_brake_blending(tmp_path):
     """A bus whose motor takes 70 % of the braking force (the library's 12 m bus: all of it),

@@ -83,6 +83,16 @@ def test_diagnose_refuses_to_overwrite_its_log(day):
     assert digest(day) == before
 
 
+def test_diagnose_refuses_to_overwrite_its_reference_day(day):
+    normal = day.with_name("normal.json")  # a reference log named like the report
+    shutil.copy(day, normal)
+    before = digest(normal)
+    code, out = invoke("diagnose", day, "--bus", "bmw_i3", "--columns", "bmw_i3_tum",
+                       "--reference", normal, "--json", normal)
+    assert code == 2 and "is an input of this command" in out
+    assert digest(normal) == before
+
+
 def test_calibrate_refuses_to_overwrite_its_bus_config(tmp_path, day):
     bus = tmp_path / "my_bus.yaml"
     shutil.copy(ROOT / "configs/bus/bmw_i3.yaml", bus)

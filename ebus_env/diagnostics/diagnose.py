@@ -33,6 +33,7 @@ from ebus_env.diagnostics.ladder import (
     split_blocks,
     windows_in,
 )
+from ebus_env.diagnostics.reference import Reference, measure_reference, mode_shares
 from ebus_env.units import with_unit
 
 WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
@@ -75,6 +76,7 @@ class Diagnosis:
     calibration: dict | None
     ladder: list[Rung]
     timings: dict
+    reference: dict | None  # the normal day the missing power is relative to
     # arrays behind the plots
     windows: residual.Windows = field(repr=False)
     missing_w: np.ndarray = field(repr=False)
@@ -91,7 +93,7 @@ class Diagnosis:
                 "status", "mode_clue",
                 "ranking", "parameters", "selected", "set_aside", "modes", "bins",
                 "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
-                "calibration", "timings")
+                "calibration", "reference", "timings")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         return _plain(out)
@@ -231,12 +233,23 @@ class Residual:
     usable: np.ndarray
     issues: list[dict]
     excluded: int
+    normal_w: tuple[np.ndarray, np.ndarray] | None = None  # what a normal day misses, +-
+
+    def beyond_normal(self) -> tuple[np.ndarray, np.ndarray]:
+        """The missing power beyond what the reference day misses, and its uncertainty (the
+        missing power itself without a reference)."""
+        if self.normal_w is None:
+            return self.missing_w, self.noise_w
+        gap_w, gap_se_w = self.normal_w
+        return self.missing_w - gap_w, np.hypot(self.noise_w, gap_se_w)
 
 
 def residual_stage(model, profiles, values: dict, window_s: float | None,
-                   loader_notes: Sequence[str] = ()) -> Residual:
+                   loader_notes: Sequence[str] = (), reference: Reference | None = None
+                   ) -> Residual:
     """Windows, the window-anchored runs and the missing power, with data problems and the
-    start-up left out."""
+    start-up left out; with a ``reference``, what a normal day of the bus misses in each
+    window too (:meth:`Residual.beyond_normal`)."""
     params = model.param_vector(values)
     dt_s = profiles[0].dt_s
     every = max(1, int(round(1.0 / dt_s)))  # diagnose on a 1 s grid
@@ -253,12 +266,13 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
     missing = measured - base_power
     issues, usable = quality.data_issues(anchored, windows, model, params, measured, base_power,
                                          loader_notes)
+    normal = reference.expected_w(mode_shares(anchored, windows)) if reference else None
     usable &= enough
     excluded = int(np.sum(enough & ~usable))
     usable &= ~(windows.start_step * dt_s < START_UP_S)
     return Residual(model, dict(values), params, every, basis, window_s, windows, anchored,
                     energy, base_power, missing, residual.uncertainty_w(noise, base_power),
-                    noise, usable, issues, excluded)
+                    noise, usable, issues, excluded, normal)
 
 
 def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say) -> tuple[
@@ -327,7 +341,9 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     in_cal = windows_in(blocks[0], w)
     fit = res.usable & in_cal
     strength, verdict_w = Strength({}, {}), None
-    modes, bins = _breakdowns(res.anchored, w, res.missing_w, res.noise_w, res.usable)
+    # where the power is missing: beyond a normal day's gap, with a reference (the attribution
+    # stays on the missing power itself: taking the gap off there named fewer effects right)
+    modes, bins = _breakdowns(res.anchored, w, *res.beyond_normal(), res.usable)
     if verdict is not None:
         best = by_name[verdict]
         moving = [by_name[n].signature_w for n in nuisance if n in by_name]
@@ -359,7 +375,8 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
             verdict_w = next(a.fit_w for a in ranked if a.name == verdict)
     clue = mode_clue(modes)
     if status == "outside library" and clue:
-        why += f"; the power is missing mostly while {clue}"
+        why += f"; the power is missing mostly while {clue}" + (
+            " (beyond what the reference day misses)" if res.normal_w is not None else "")
     ranking = [{"effect": a.name, "kind": a.kind, "explained_fraction": a.explained,
                 "explained_band": list(a.band),
                 "parameters": strength.value if a.name == verdict else {},
@@ -445,17 +462,32 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
     return Fits(nrmse, ladder, runs, after_runs)
 
 
+def reference_stage(bus: BusConfig, profiles, window_s, settings, polish_starts,
+                    freedom) -> Reference:
+    """The reference day calibrated as a suspect day is, and what its model misses (see
+    :mod:`ebus_env.diagnostics.reference`)."""
+    dt_s = profiles[0].dt_s
+    model = bus.build(dt_s)
+    rung = calibrate_rung(bus, [], profiles, *split_blocks(profiles), dt_s, settings,
+                          polish_starts, model=model, freedom=freedom)
+    return measure_reference(model, profiles, rung,
+                             residual_stage(model, profiles, rung.values, window_s))
+
+
 def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
              add: Sequence = (), window_s: float | None = None, settings=None,
              polish_starts: int | None = None, loader_notes: Sequence[str] = (),
-             progress=None, freedom: Freedom | None = None) -> Diagnosis:
+             progress=None, freedom: Freedom | None = None,
+             reference: Sequence | Reference | None = None) -> Diagnosis:
     """Diagnose ``bus`` against measured ``profiles`` (see the module docstring), in four
     stages that share the models they build: residual, candidates, attribution, ladder.
 
     ``calibrate`` fits the paper's parameters on the calibration blocks first (see
     :mod:`ebus_env.diagnostics.ladder`); ``add`` lists effects for the error ladder (each
     added and re-calibrated in turn). ``freedom`` changes what the calibrations fit and holds
-    known values (calibrated or not).
+    known values (calibrated or not). ``reference``, the profiles of a normal day of the same
+    bus (or the :class:`Reference` :func:`reference_stage` made of them), makes the diagnosis
+    relative to that day (:mod:`ebus_env.diagnostics.reference`; it implies ``calibrate``).
     """
     say = progress or (lambda text: None)
     timings: dict[str, float] = {}
@@ -463,7 +495,17 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     profiles = list(profiles)
     dt_s = profiles[0].dt_s
     blocks = split_blocks(profiles)
+    normal = reference if isinstance(reference, Reference) else None
+    if normal is None and reference:
+        say("calibrating the reference day")
+        normal = reference_stage(bus, list(reference), window_s, settings, polish_starts,
+                                 freedom)
+        timings["reference_s"] = time.perf_counter() - t0
+    if normal is not None:
+        bus = bus.overlay(normal.overlay(), "the reference day")
     model = bus.build(dt_s)
+    if normal is not None:
+        freedom, calibrate = normal.freedom(model, freedom), True
     first_rung = None
     if calibrate or add:
         say("calibrating the model as given")
@@ -474,7 +516,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     t1 = time.perf_counter()
     known = (freedom or Freedom()).on(model).fixed
     res = residual_stage(model, profiles, first_rung.values if first_rung else dict(known),
-                         window_s, loader_notes)
+                         window_s, loader_notes, normal)
     timings["residual_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
@@ -505,6 +547,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
         excluded_windows=res.excluded, nrmse=fits.nrmse,
         calibration={**first_rung.calibration_result.to_json(), "fixed": known}
         if first_rung else None,
+        reference=normal.to_json() if normal else None,
         ladder=fits.ladder, timings=timings, windows=res.windows, missing_w=res.missing_w,
         noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
         after_runs=fits.after_runs, anchored=res.anchored,

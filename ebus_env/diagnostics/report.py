@@ -15,7 +15,9 @@ def _f(value, digits: int = 2) -> str:
 def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of every table of the report, in order."""
     out = []
-    out.append(("Where it fails: missing power by operating mode",
+    beyond = f" beyond the reference day ({', '.join(d.reference['logs'])})" \
+        if d.reference else ""
+    out.append(("Where it fails: missing power by operating mode" + beyond,
                 ["mode", "hours", "missing kW", "+-", "missing kWh"],
                 [[m["mode"], _f(m["hours"]), _f(m["missing_kw"]), _f(m["stderr_kw"]),
                   _f(m["missing_kwh"])] for m in d.modes]))
@@ -29,6 +31,17 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                   _f(w["missing_kw"]), _f(w["stderr_kw"]), _f(w["mean_speed_kmh"], 1),
                   _f(w["ambient_degc"], 1), _f(w["soc_pct"], 1), w["main_mode"]]
                  for w in d.worst_windows]))
+    if d.reference:
+        ref = d.reference
+        out.append((f"The reference day: what the model calibrated on it misses by mode "
+                    f"(held-out NRMSE {ref['held_out_nrmse']:.4f}), taken off the breakdowns "
+                    "by mode and bins above",
+                    ["mode", "missing kW", "+-"],
+                    [[m["mode"], _f(m["missing_kw"]), _f(m["stderr_kw"])]
+                     for m in ref["missing_by_mode"]]))
+        out.append(("The reference day's bus-to-bus values (the calibration searches within "
+                    "a narrow range of them)", ["parameter", "value"],
+                    [[name, f"{value:.4g}"] for name, value in ref["values"].items()]))
     out.append(("Which effect is missing (held-out share of the missing power, with its "
                 "5-95 % band over bootstrap resamples of the windows)",
                 ["effect", "kind", "explained %", "band %", "estimate (90 % interval)"],
@@ -116,7 +129,9 @@ def write_html(d, path: str | Path) -> None:
         path, f"Diagnosis of {d.bus} on {', '.join(d.logs)}", sections,
         verdict=d.sentence, verdict_found=bool(d.verdict),
         ran=f"ebus diagnose: the {d.bus} model replayed on {', '.join(d.logs)}",
-        settings={"missing power from": d.basis, "window": f"{d.window_s:g} s",
+        settings={"missing power from": d.basis,
+                  **({"relative to the reference day": ", ".join(d.reference["logs"])}
+                     if d.reference else {}), "window": f"{d.window_s:g} s",
                   "significance": f"{d.significance:.1f} standard deviations above noise",
                   "windows excluded for data problems": d.excluded_windows,
                   "run time": f"{d.timings.get('total_s', 0):.1f} s"},

@@ -285,13 +285,15 @@ def fractions(labels: list[np.ndarray], windows: Windows, record_every: int,
     return out
 
 
-def decompose(missing_w: np.ndarray, noise_w: np.ndarray, share: np.ndarray) -> tuple[
-        np.ndarray, np.ndarray]:
-    """Missing power in each class [W] and its standard error: the weighted least-squares fit
-    of missing_w = share @ p; classes never visited get NaN."""
+def decompose(missing_w: np.ndarray, noise_w: np.ndarray, share: np.ndarray,
+              covariance: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Missing power in each class [W] and its standard error (or, with ``covariance``, the
+    covariance matrix of the classes [W^2]): the weighted least-squares fit of
+    missing_w = share @ p; classes never visited get NaN."""
+    n = share.shape[1]
     seen = share.sum(axis=0) > 1e-6
-    p = np.full(share.shape[1], np.nan)
-    se = np.full(share.shape[1], np.nan)
+    p = np.full(n, np.nan)
+    se = np.full((n, n) if covariance else n, np.nan)
     if not seen.any() or len(missing_w) == 0:
         return p, se
     weight = 1.0 / np.maximum(noise_w, 1e-3 * (np.median(noise_w) + 1.0))
@@ -302,7 +304,10 @@ def decompose(missing_w: np.ndarray, noise_w: np.ndarray, share: np.ndarray) -> 
     dof = max(len(y) - int(seen.sum()), 1)
     cov = np.linalg.pinv(a.T @ a) * float(resid @ resid) / dof
     p[seen] = coef
-    se[seen] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    if covariance:
+        se[np.ix_(seen, seen)] = cov
+    else:
+        se[seen] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return p, se
 
 
