@@ -5,6 +5,7 @@
     python benchmarks/bench_diagnose.py --out-of-family [--smoke] [--per-effect N]   # truth bench
     python benchmarks/bench_diagnose.py --out-of-family --current-voltage   # ... on BMS logs
     python benchmarks/bench_diagnose.py --out-of-family --oracle   # ... the effects' own power
+    python benchmarks/bench_diagnose.py --out-of-family --reference   # ... against a normal day
 
 * Out of family (``--out-of-family``): service days made by simulators that are not this
   model (``benchmarks/truth``: an independent simulator, and FASTSim 3 where installed), one
@@ -287,11 +288,20 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     :data:`ORACLE`: the hidden effect in a perfect form."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
-    source, case, folder, current_voltage, oracle = (*job, False, False)[:5]
+    source, case, folder, current_voltage, oracle, reference = (*job, False, False, False)[:6]
     profiles, truth = truth_day(source, case, Path(folder), current_voltage, oracle)
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
+    freedom = None
     t0, cpu0 = time.perf_counter(), time.process_time()
-    d = diagnose(bus, profiles, calibrate=True)
+    if reference:  # a normal day of the same bus; the ladder then searches as the diagnosis
+        from benchmarks.truth.cases import reference_case
+        from ebus_env.diagnostics.diagnose import reference_stage
+
+        normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
+        reference = reference_stage(bus, normal_day, None, None, None, None)
+        bus = bus.overlay(reference.overlay(), "the reference day")
+        freedom = reference.freedom(bus.build(profiles[0].dt_s))
+    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
     row = {"cpu_s": time.process_time() - cpu0, "source": source, "case": case.case_id,
            "hidden": case.hidden, "expected": truth["expected_verdict"],
            "outside_modes": truth.get("outside_modes") or [],
@@ -317,7 +327,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
         USER_EFFECTS.get(case.hidden) if expected == "outside_library" else expected)
     if ladder and row["added"]:
         rungs = error_ladder(bus, profiles, [row["added"]], profiles[0].dt_s,
-                             first=d.ladder[0], blocks=split_blocks(profiles))
+                             first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
         row["fall"] = improvement(rungs)
         row["added_values"] = {k: v for k, v in rungs[-1].values.items()
@@ -407,7 +417,8 @@ def oracle_table(rows) -> None:
 def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   sources: tuple[str, ...] = tuple(SOURCES), per_effect: int | None = None,
                   controls: int | None = None, current_voltage: bool = False,
-                  rows_path: Path | None = None, oracle: bool = False) -> None:
+                  rows_path: Path | None = None, oracle: bool = False,
+                  reference: bool = False) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -415,7 +426,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
           + " --calibrate)" + (", logs with the pack's current and voltage"
                                if current_voltage else "")
           + (", logs with the hidden effect's own power (oracle; control days left out: "
-             "they have none)" if oracle else ""))
+             "they have none)" if oracle else "")
+          + (", each against a normal day of the same bus (--reference)" if reference else ""))
     jobs = []
     for source in sources:
         module, why = truth_module(source)
@@ -425,7 +437,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         if current_voltage and source != "truthsim":
             print(f"  {source}: its logs have no pack current (SoC only): skipped")
             continue
-        jobs += [(source, c, str(folder), current_voltage, oracle)
+        jobs += [(source, c, str(folder), current_voltage, oracle, reference)
                  for c in truth_cases(source, smoke, per_effect, controls)
                  if not (oracle and c.hidden is None)]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
@@ -500,6 +512,9 @@ def main() -> None:
                         "power (a perfect form of the effect), for bounds")
     parser.add_argument("--rows", type=Path, default=None,
                         help="out of family: write every day's result here (JSON)")
+    parser.add_argument("--reference", action="store_true",
+                        help="out of family: diagnose each day against a normal day of the "
+                        "same bus (diagnose --reference)")
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw"))
     if args.out_of_family:
@@ -507,7 +522,7 @@ def main() -> None:
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
-                      args.oracle)
+                      args.oracle, args.reference)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

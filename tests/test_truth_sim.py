@@ -200,6 +200,27 @@ def test_a_bms_log_adds_current_and_voltage_and_leaves_the_rest_unchanged(hilly_
     assert np.abs(volts - 1.0).max() < 0.005
 
 
+def test_a_reference_day_is_a_normal_day_of_the_same_bus():
+    """The bench's reference day of a case draws the same bus (every base parameter), drives
+    another plan with another driver, and hides nothing; a case without a reference keeps
+    its own streams."""
+    case = truth_cases.cases(1, 0, effects=("cabin_heating",))[0]
+    normal = truth_cases.reference_case(case)
+    assert (normal.hidden, normal.climate, normal.route, normal.chemistry) == (
+        None, "mild", case.route, case.chemistry)
+    short = [dataclasses.replace(c, hours=0.3) for c in (case, normal)]
+    (plan_a, base_a, *_), (plan_b, base_b, *_) = map(truth_cases.day_trace, short)
+    preview = "driver_preview_s"  # the driver's, drawn with the day
+    assert {k: v for k, v in base_a.items() if k != preview} == \
+        {k: v for k, v in base_b.items() if k != preview}
+    assert base_a[preview] != base_b[preview]
+    assert not np.array_equal(plan_a["speed_target_mps"], plan_b["speed_target_mps"])
+    # the plan, driver and log streams of its own seed, the bus's of the case's
+    assert [s.entropy for s in truth_cases._streams(case)] == [case.seed] * 4
+    assert [s.entropy for s in truth_cases._streams(normal)] == [case.seed + 1, case.seed,
+                                                                 case.seed + 1, case.seed + 1]
+
+
 def test_a_short_case_is_byte_reproducible():
     case = dataclasses.replace(truth_cases.cases(1, 0, effects=("passenger_mass",))[0],
                                hours=0.4)

@@ -17,7 +17,7 @@ import io
 import json
 import os
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +68,9 @@ class Case:
     hours: float
     relative_time: bool
     climate: str
+    bus_seed: int | None = None
+    """The seed whose stream draws the bus's base parameters (default: ``seed``): cases with
+    one ``bus_seed`` are days of the same bus."""
 
 
 def cases(n_per_effect: int = 10, n_control: int = 30, seed: int = DEFAULT_SEED,
@@ -196,8 +199,21 @@ def _used_j(trace: pd.DataFrame) -> float:
 
 
 def _streams(case: Case) -> list[np.random.SeedSequence]:
-    """The case's independent random streams: plan, base parameters, physics, log."""
-    return np.random.SeedSequence(case.seed).spawn(4)
+    """The case's independent random streams: plan, base parameters, physics, log (the base
+    parameters' from ``bus_seed`` where the case has one)."""
+    streams = np.random.SeedSequence(case.seed).spawn(4)
+    if case.bus_seed is not None:
+        streams[1] = np.random.SeedSequence(case.bus_seed).spawn(4)[1]
+    return streams
+
+
+def reference_case(case: Case) -> Case:
+    """A normal day of the same bus as ``case`` (what a fleet engineer holds as known-good):
+    its base draw, its route and pack, another plan, a mild day from 06:30 for 9 h, nothing
+    hidden."""
+    return replace(case, case_id=f"{case.case_id}_reference", hidden=None,
+                   seed=case.seed + 1, start_clock_h=6.5, hours=9.0, climate="mild",
+                   bus_seed=case.seed)
 
 
 def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:

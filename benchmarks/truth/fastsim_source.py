@@ -462,7 +462,7 @@ def generate_with_clean(case: truthsim.Case, oracle: bool = False) -> tuple[
     """:func:`generate`, plus the clean trace (for checks and figures)."""
     require_fastsim()
     hidden = case.hidden
-    plan_ss, base_ss, phys_ss, log_ss = np.random.SeedSequence(case.seed).spawn(4)
+    plan_ss, base_ss, phys_ss, log_ss = truthsim._streams(case)
     base = draw_base(np.random.default_rng(base_ss))
     # as in cases.py: when the drawn chargers leave the pack below MIN_SOC_FRAC, the operator
     # runs the same day with 450 kW at both terminals
