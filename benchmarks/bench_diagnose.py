@@ -293,15 +293,16 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     freedom = None
     t0, cpu0 = time.perf_counter(), time.process_time()
-    if reference:  # a normal day of the same bus; the ladder then searches as the diagnosis
+    if reference:  # a normal day of the same bus
         from benchmarks.truth.cases import reference_case
         from ebus_env.diagnostics.diagnose import reference_stage
 
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
         reference = reference_stage(bus, normal_day, None, None, None, None)
+    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
+    if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")
         freedom = reference.freedom(bus.build(profiles[0].dt_s))
-    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
     row = {"cpu_s": time.process_time() - cpu0, "source": source, "case": case.case_id,
            "hidden": case.hidden, "expected": truth["expected_verdict"],
            "outside_modes": truth.get("outside_modes") or [],
