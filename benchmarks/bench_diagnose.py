@@ -318,7 +318,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "energy_interval_kwh": d.ranking[0].get("energy_interval_kwh") if d.verdict else None,
            "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
-           / 3600.0, "why": d.why}
+           / 3600.0, "why": d.why, "range_ends": d.range_ends}
     expected = truth["expected_verdict"]
     row["right"] = named_right(expected, d.verdict, d.status,
                                [r["effect"] for r in d.ranking], oracle)
@@ -381,6 +381,12 @@ def figures(rows) -> dict:
         # what a clue on an outside-library day must stand out of
         "control_clue": share([r for r in control if r["clue"]], control),
         "control_modes": Counter(r["clue"] for r in control if r["clue"]).most_common(),
+        # the calibrated bus pressed against the ends of its ranges with nothing hidden: how
+        # far the other simulator's bus lies from what the library's parameters can take up
+        "control_ends": share([r for r in control if r.get("range_ends")], control),
+        "control_end_params": Counter(f"{n.split('.')[-1]} {side}" for r in control
+                                      for n, side in r.get("range_ends", {}).items())
+        .most_common(),
         "fall": {k: float(np.nanmedian(v)) for k, v in falls.items()},
         "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
                            <= BARS["strength"]], shared),
@@ -473,6 +479,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
          f"bar >= 80 %; {f['outside'][1]} days")
     line("control days whose report names a mode all the same", f"{100 * f['control_clue'][0]:.0f} %",
          ", ".join(f"{mode} {n}" for mode, n in f["control_modes"]) or "none")
+    line("control days calibrated at an end of a range", f"{100 * f['control_ends'][0]:.0f} %",
+         ", ".join(f"{p} {n}" for p, n in f["control_end_params"]) or "none")
     for effect, fall in sorted(f["fall"].items()):
         line(f"held-out NRMSE fall, + {effect} (median)", f"{100 * fall:.0f} %", "bar >= 50 %")
     line("strength within +-25 % (named right)", f"{100 * f['strength'][0]:.0f} %",

@@ -114,8 +114,11 @@ def calibration_tables(result):
     from rich.table import Table
 
     params = Table(title="fitted parameters", header_style="bold")
-    for col in ("parameter", "value", "unit", "bounds", "determined by the data"):
+    for col in ("parameter", "value", "unit", "bounds", "determined by the data", "at an end"):
         params.add_column(col)
+    from ebus_env.calibration.calibrate import RANGE_END
+
+    ends = result.pressing()
     for name in result.free:
         low, high = result.bounds[name]
         d = result.determinacy.get(name)
@@ -123,7 +126,7 @@ def calibration_tables(result):
         if d is not None and d.partners:
             how += f" (trades off with {', '.join(d.partners)})"
         params.add_row(name, f"{result.values[name]:.4g}", shown_unit(result.units[name]),
-                       f"[{low:g}, {high:g}]", how)
+                       f"[{low:g}, {high:g}]", how, RANGE_END.get(ends.get(name), ""))
     fit = Table(title="fit of SoC", header_style="bold")
     fit.add_column("figure")
     fit.add_column("calibration", justify="right")

@@ -507,6 +507,48 @@ def test_what_a_user_knows_is_held_and_what_they_free_is_fitted():
                                        fixed={"static_rcd.rcd_frac": 0.05}))
 
 
+def test_a_value_presses_on_a_range_end_when_the_fit_worsens_inward():
+    """At an end of its range, with the fit worse one grid step inward: the data want a
+    value beyond; inside the range, or with a flat profile, nothing presses."""
+    from ebus_env.calibration.calibrate import Determinacy
+
+    grid = list(np.linspace(10.0, 20.0, 9))
+    rising = Determinacy("weakly determined", 10, 20, 0.1, [], grid, [0.01 * (1 + i) for i in range(9)])
+    assert rising.pressing(10.0) == "lower" and rising.pressing(15.0) is None
+    falling = Determinacy("weakly determined", 10, 20, 0.1, [], grid, rising.cost[::-1])
+    assert falling.pressing(20.0) == "upper" and falling.pressing(10.0) is None
+    assert Determinacy("not determined", 10, 20, 1.0, [], grid, [0.01] * 9).pressing(10.0) is None
+
+
+@pytest.mark.slow
+def test_a_calibrated_value_the_data_press_against_its_range_end_is_reported():
+    """A bus configured with a 60 Ah cell where the truth's has 100 Ah: the calibration takes
+    up what it can with the other bus-to-bus parameters and presses some against the ends of
+    their ranges, and the report says so (table, caution, JSON); configured right, nothing
+    presses. A value at its admissible end (no RC dynamics, rcd_frac = 0) is not pressing:
+    it may well be right there."""
+    from ebus_env.calibration import ISOPTSettings
+    from ebus_env.diagnostics.ladder import NUISANCE
+    from ebus_env.diagnostics.report import text_report
+
+    case = hidden.case("control")
+    profiles = hidden_log(case.name)
+    cap = "rint_battery.cell_capacity_ah"
+    model = hidden.true_bus(case).build()
+    assert model.params[model.param_index(cap)] == pytest.approx(100.0)
+    quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
+    small = hidden.baseline_bus(case).overlay({"params": {"rint_battery": {"cell_capacity_ah": 60}}})
+    d = diagnose(small, profiles, **quick)
+    assert d.calibration["params"][cap] < 96.0  # the truth lies beyond the search
+    assert d.range_ends and set(d.range_ends) <= set(NUISANCE), d.range_ends
+    name, side = next(iter(d.range_ends.items()))
+    assert name in d.caution and f"{side}: the data want" in text_report(d)
+    assert d.to_json()["calibration"]["at_range_end"] == d.range_ends
+    right = diagnose(hidden.baseline_bus(case), profiles, **quick)
+    assert right.range_ends == {} and right.caution == ""
+    assert right.calibration["params"]["static_rcd.rcd_frac"] < 0.01  # at its admissible end
+
+
 def test_the_explained_line_is_the_fit_with_the_calibrated_parameters_moving_back():
     """After a calibration a parameter has absorbed most of the effect: the missing power is
     small, and the effect's part alone lies far from it. The plotted fit must include the

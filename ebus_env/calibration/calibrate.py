@@ -21,6 +21,10 @@ NEAR_REL = 0.10
 """Parameter values whose fit is within this fraction of the best NRMSE (plus ``NEAR_ABS``)
 count as "as good": their spread is how well the data determines a parameter."""
 NEAR_ABS = 5e-4
+EDGE = 0.01
+"""A fitted value within this fraction of its search range from an end of it sits at that end."""
+RANGE_END = {"lower": "lower: the data want less", "upper": "upper: the data want more"}
+"""How a value the data press against an end of its range reads in a report's table."""
 NOISE_MULTIPLE = 2.0
 """A fit more than this many times the log's own noise floor is not at the truth: either a
 better fit exists that no search found, or the model lacks an effect. No parameter is then
@@ -44,6 +48,21 @@ class Determinacy:
     partners: list[str]
     grid: list[float]
     cost: list[float]
+
+    def pressing(self, value: float) -> str | None:
+        """"lower" or "upper" when ``value`` sits at that end of the range searched and the
+        fit along the parameter (the others held) is worse one grid step inward than there by
+        more than "as good" (NEAR_REL, NEAR_ABS). A flat profile (a CV threshold never
+        reached) presses on nothing."""
+        if len(self.grid) < 2 or not self.grid[-1] > self.grid[0]:
+            return None
+        u = (value - self.grid[0]) / (self.grid[-1] - self.grid[0])
+        side = "lower" if u <= EDGE else "upper" if u >= 1.0 - EDGE else None
+        if side is None:
+            return None
+        edge, inward = (self.cost[0], self.cost[1]) if side == "lower" else \
+            (self.cost[-1], self.cost[-2])
+        return side if inward > np.hypot(edge * (1.0 + NEAR_REL), NEAR_ABS) else None
 
 
 @dataclass
@@ -70,6 +89,26 @@ class CalibrationResult:
     windows: list[dict] = field(default_factory=list)
     curves: dict = field(default_factory=dict)  # for plotting: label -> (t_h, sim, meas)
     timings: dict = field(default_factory=dict)  # search_s, polish_s, determinacy_s
+    admissible: dict = field(default_factory=dict)  # name -> the effect's declared bounds
+
+    def pressing(self) -> dict[str, str]:
+        """The free parameters the data press against an end of the range searched ("lower"
+        or "upper", see :meth:`Determinacy.pressing`) where that end is narrower than the
+        parameter's admissible range (a bus config's bounds, a bus-to-bus search range, a
+        user's range): the data want a value the search did not allow. Such a value stands in
+        for more than its own parameter: the bus lies outside the range (widen it, a
+        calibration config's ``ranges``), or the model lacks an effect whose power this
+        parameter takes up. An end that is the admissible one (a bus without RC dynamics at
+        ``rcd_frac`` = 0) is where the value may well be."""
+        out = {}
+        for name, d in self.determinacy.items():
+            side = d.pressing(self.values[name])
+            if side is None:
+                continue
+            end = int(side == "upper")
+            if self.bounds[name][end] != self.admissible.get(name, (None, None))[end]:
+                out[name] = side
+        return out
 
     def overlay(self) -> dict:
         """A bus-config overlay with the fitted values (``ebus simulate --overlay``)."""
@@ -100,6 +139,7 @@ class CalibrationResult:
             "determinacy": {k: {"status": d.status, "low": d.low, "high": d.high,
                                 "half_width": d.half_width, "trades_off_with": d.partners}
                             for k, d in self.determinacy.items()},
+            "at_range_end": self.pressing(),
             "cost": self.cost,
             **{k: v for k, v in self.fit.items()},
             "validation": self.validation,
@@ -398,4 +438,5 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         fit=fit, validation=validation, determinacy=det, history=history,
         evaluations=evaluations, simulated_steps=problem.simulated_steps,
         wall_time_s=tuning_s, interrupted=interrupted, method=method, notes=notes,
-        warnings=list(problem.warnings), windows=windows, curves=curves, timings=timings)
+        warnings=list(problem.warnings), windows=windows, curves=curves, timings=timings,
+        admissible={p: tuple(map(float, model.param_info(p).bounds)) for p in problem.free})

@@ -88,6 +88,24 @@ class Diagnosis:
     anchored: list = field(repr=False)  # the window-anchored runs
     after_label: str = ""
 
+    @property
+    def range_ends(self) -> dict[str, str]:
+        """The calibrated parameters the data press against an end of the range searched
+        (see :meth:`~ebus_env.calibration.calibrate.CalibrationResult.pressing`)."""
+        return (self.calibration or {}).get("at_range_end", {})
+
+    @property
+    def caution(self) -> str:
+        """What the calibrated parameters at an end of their range mean, or ""."""
+        ends = self.range_ends
+        if not ends:
+            return ""
+        return (f"The calibration pressed {len(ends)} parameter(s) against an end of the range "
+                f"searched ({', '.join(f'{n} at its {side} end' for n, side in ends.items())}): "
+                "the bus lies outside those ranges (widen them with a calibration config's "
+                "ranges), or they take up power the model lacks; read the missing power with "
+                "that in mind.")
+
     def to_json(self) -> dict:
         keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "significance",
                 "status", "mode_clue",
@@ -187,7 +205,7 @@ def _worst(anchored, windows, missing, noise, usable) -> list[dict]:
 def _sentence(found, by_name, model) -> str:
     verdict = found.verdict
     if found.status == "outside library":
-        return f"No library effect explains it: {found.why}."
+        return f"{found.why[:1].upper()}{found.why[1:]}."  # "no library effect explains ..."
     if verdict is None:
         return f"No missing effect is supported by the data: {found.why}."
     top = next(a for a in found.ranking if a["effect"] == verdict)

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ebus_env.calibration.calibrate import RANGE_END
 from ebus_env.html_report import Figure, Section, Table, write_report
+from ebus_env.units import shown_unit
 
 
 def _f(value, digits: int = 2) -> str:
@@ -62,6 +64,14 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
     out.append(("Clues: what the missing power moves with", ["feature", "correlation",
                                                              "meaning"],
                 [[c["feature"], _f(c["correlation"]), c["meaning"]] for c in d.clues[:8]]))
+    if d.calibration:
+        c, ends = d.calibration, d.range_ends
+        out.append(("The calibrated bus (fitted on the calibration blocks; known values held: "
+                    + (", ".join(c["fixed"]) or "none") + ")",
+                    ["parameter", "value", "unit", "range searched", "at an end"],
+                    [[name, f"{value:.4g}", shown_unit(c["units"][name]),
+                      "{:.4g} to {:.4g}".format(*c["bounds"][name]),
+                      RANGE_END.get(ends.get(name), "")] for name, value in c["params"].items()]))
     out.append(("Data problems (windows excluded from the attribution)",
                 ["issue", "where / detail"],
                 [[i["issue"], ", ".join(f"{k} {v}" for k, v in i.items() if k != "issue")]
@@ -84,7 +94,7 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
 
 def text_report(d) -> str:
     """Plain-text report."""
-    lines = [d.sentence, ""]
+    lines = [d.sentence, *([d.caution] if d.caution else []), ""]
     for title, header, rows in tables(d):
         widths = [max(len(str(x)) for x in [h, *[r[i] for r in rows]])
                   for i, h in enumerate(header)]
@@ -134,6 +144,9 @@ def write_html(d, path: str | Path) -> None:
                      if d.reference else {}), "window": f"{d.window_s:g} s",
                   "significance": f"{d.significance:.1f} standard deviations above noise",
                   "windows excluded for data problems": d.excluded_windows,
+                  **({"calibrated at an end of the range searched": ", ".join(
+                      f"{n} ({side})" for n, side in d.range_ends.items())}
+                     if d.range_ends else {}),
                   "run time": f"{d.timings.get('total_s', 0):.1f} s"},
         how_to_read="missing power is the battery power the measured SoC implies minus the "
                     "model's; the ranking gives the share of it each candidate effect explains "
