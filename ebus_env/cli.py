@@ -591,7 +591,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
 
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.diagnostics import diagnose as run_diagnosis
-    from ebus_env.diagnostics.ladder import Freedom
+    from ebus_env.diagnostics.ladder import Freedom, as_effect
     from ebus_env.diagnostics.report import console_tables
     from ebus_env.errors import LogError
     from ebus_env.inputs import check
@@ -603,12 +603,17 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     cfg = load_calibration_config(config)
     bus = choice.load()
     overrides = _overrides(set_)
-    bus.build().param_vector(overrides)  # unknown names and values outside bounds fail here
-    if overrides:  # as an overlay, so that every model the diagnosis builds has them
-        params: dict = {}
-        for key, value in overrides.items():
-            effect_name, param = key.split(".", 1)
+    everything = bus  # with the effects --add adds: a --set value may be one of theirs
+    for item in _split(add):
+        everything = everything.with_effect(as_effect(item))
+    everything.build().param_vector(overrides)  # unknown names, values out of bounds fail here
+    present = {n.partition(".")[0] for n in bus.build().param_names}
+    params: dict = {}
+    for key, value in overrides.items():
+        effect_name, param = key.split(".", 1)
+        if effect_name in present:  # the added effects take theirs when they are added
             params.setdefault(effect_name, {})[param] = value
+    if params:  # as an overlay, so that every model the diagnosis builds has them
         bus = bus.overlay({"params": params}, "--set")
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
                    choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],

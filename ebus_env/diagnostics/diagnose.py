@@ -293,13 +293,15 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
                     noise, usable, issues, excluded, normal)
 
 
-def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say) -> tuple[
-        list, list[dict]]:
+def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say,
+                    held: dict | None = None) -> tuple[list, list[dict]]:
     """Signatures of the missing effects (the user's named for the ladder among them) and of
-    the model's parameters; each effect candidate keeps its built model."""
+    the model's parameters; each effect candidate keeps its built model. ``held``: known
+    values, those of an added effect among them."""
     user = tuple(e for e in map(as_effect, add) if not e.builtin)
     dt_s = profiles[0].dt_s
-    candidates, aside = effect_candidates(bus, dt_s, res.values, profiles, res.windows,
+    values = {**res.values, **(held or {})}
+    candidates, aside = effect_candidates(bus, dt_s, values, profiles, res.windows,
                                           res.basis, res.energy_j, res.base_power_w, user,
                                           progress=lambda n: say(f"  {n}"))
     candidates += parameter_candidates(res.model, res.params, profiles, res.windows, res.basis,
@@ -512,6 +514,15 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     t0 = time.perf_counter()
     profiles = list(profiles)
     dt_s = profiles[0].dt_s
+    # a known value names a parameter of the bus or of an effect the ladder adds (held from
+    # the signatures of that effect on)
+    held = dict((freedom or Freedom()).fixed)
+    add = [as_effect(a) for a in add]
+    if held:
+        everything = bus
+        for eff in add:
+            everything = everything.with_effect(eff)
+        everything.build(dt_s).param_vector(held)
     blocks = split_blocks(profiles)
     normal = reference if isinstance(reference, Reference) else None
     if normal is None and reference:
@@ -539,7 +550,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
 
     t1 = time.perf_counter()
     say("signatures of the candidate effects")
-    candidates, aside = candidate_stage(bus, res, profiles, add, say)
+    candidates, aside = candidate_stage(bus, res, profiles, add, say, held)
     by_name = {c.name: c for c in candidates}
     timings["candidates_s"] = time.perf_counter() - t1
 

@@ -73,13 +73,17 @@ class Freedom:
 
     def on(self, model) -> Freedom:
         """The names as ``model`` has them (a refinement in a slot keeps its parameters under
-        its own name: ``regen_soc_limit.cutoff_speed_mps``)."""
+        its own name: ``regen_soc_limit.cutoff_speed_mps``). Known values of an effect the
+        model does not have (one the ladder adds later) wait until a model has it."""
         def name(n):
             return model.equivalent(n) or n
 
+        effects = {n.partition(".")[0] for n in model.param_names}
+        fixed = {name(k): v for k, v in self.fixed.items()
+                 if model.equivalent(k) or k.partition(".")[0] in effects}
         return Freedom(None if self.params is None else tuple(map(name, self.params)),
-                       {name(k): v for k, v in self.ranges.items()},
-                       {name(k): v for k, v in self.fixed.items()}, self.categorical_load)
+                       {name(k): v for k, v in self.ranges.items()}, fixed,
+                       self.categorical_load)
 
 
 BLOCK_S = 3600.0
