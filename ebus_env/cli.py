@@ -591,7 +591,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
 
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.diagnostics import diagnose as run_diagnosis
-    from ebus_env.diagnostics.ladder import Freedom, as_effect
+    from ebus_env.diagnostics.ladder import Freedom, as_effect, check_known
     from ebus_env.diagnostics.report import console_tables
     from ebus_env.errors import LogError
     from ebus_env.inputs import check
@@ -603,10 +603,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     cfg = load_calibration_config(config)
     bus = choice.load()
     overrides = _overrides(set_)
-    everything = bus  # with the effects --add adds: a --set value may be one of theirs
-    for item in _split(add):
-        everything = everything.with_effect(as_effect(item))
-    everything.build().param_vector(overrides)  # unknown names, values out of bounds fail here
+    # unknown names and values out of bounds fail here (a --set value may be one of an
+    # effect --add adds)
+    check_known(bus, [as_effect(a) for a in _split(add)], Freedom(fixed=overrides))
     present = {n.partition(".")[0] for n in bus.build().param_names}
     params: dict = {}
     for key, value in overrides.items():

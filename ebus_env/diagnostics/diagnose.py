@@ -28,6 +28,7 @@ from ebus_env.diagnostics.ladder import (
     Rung,
     as_effect,
     calibrate_rung,
+    check_known,
     error_ladder,
     fit_on_blocks,
     split_blocks,
@@ -514,15 +515,9 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     t0 = time.perf_counter()
     profiles = list(profiles)
     dt_s = profiles[0].dt_s
-    # a known value names a parameter of the bus or of an effect the ladder adds (held from
-    # the signatures of that effect on)
-    held = dict((freedom or Freedom()).fixed)
     add = [as_effect(a) for a in add]
-    if held:
-        everything = bus
-        for eff in add:
-            everything = everything.with_effect(eff)
-        everything.build(dt_s).param_vector(held)
+    check_known(bus, add, freedom, dt_s)
+    held = dict((freedom or Freedom()).fixed)
     blocks = split_blocks(profiles)
     normal = reference if isinstance(reference, Reference) else None
     if normal is None and reference:

@@ -96,6 +96,18 @@ def as_effect(item) -> Effect:
     return item if isinstance(item, Effect) else resolve_effect(str(item))
 
 
+def check_known(bus: BusConfig, add: list[Effect], freedom: Freedom | None,
+                dt_s: float = 0.1) -> None:
+    """Every known value names a parameter of ``bus`` or of an effect in ``add`` (held from
+    the effect's signatures on), inside its bounds: a clear error otherwise, before any
+    calibration (:meth:`Freedom.on` leaves an added effect's values out until it is there)."""
+    fixed = (freedom or Freedom()).fixed
+    if fixed:
+        for eff in add:
+            bus = bus.with_effect(eff)
+        bus.build(dt_s).param_vector(fixed)
+
+
 def block_steps(profile, block_s: float = BLOCK_S) -> int:
     """Steps per block of a profile: an hour, or a quarter of a shorter log."""
     return max(2, int(round(min(block_s, profile.duration_s / MIN_BLOCKS) / profile.dt_s)))
@@ -232,6 +244,7 @@ def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None
     ``freedom`` says); ``estimates`` maps an effect's name to starting values of its
     parameters."""
     cal, held = blocks or split_blocks(profiles)
+    check_known(bus, [as_effect(a) for a in add], freedom, dt_s)
     rungs = [first] if first is not None else []
     if not rungs:
         if progress:
