@@ -220,6 +220,14 @@ def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(nam
     if before > 2 * truth_nrmse:
         assert d.verdict == case.effect  # named on the calibrated model's residual too
         assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
+    if name == "cabin_heating":
+        # without the cabin the calibration takes its power up with the auxiliary base load
+        # and a drivetrain efficiency pressed against the low end of its range; with it, both
+        # come back (aux base load within 10 % of the truth's 4 kW)
+        assert d.ladder[0].range_ends.get("efficiency_map.gearbox_efficiency") == "lower"
+        assert d.ladder[-1].range_ends == {}
+        assert d.ladder[-1].values["auxiliaries.base_power_w"] == pytest.approx(4000, rel=0.1)
+        assert "efficiency_map.gearbox_efficiency (lower)" in d.text()
 
 
 def test_control_day_supports_no_missing_effect():

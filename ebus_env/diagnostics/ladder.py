@@ -151,10 +151,18 @@ class Rung:
     calibration_result: CalibrationResult | None = field(default=None, repr=False)
     model: object = field(default=None, repr=False)  # the built model of this rung
 
+    @property
+    def range_ends(self) -> dict[str, str]:
+        """The parameters this rung's calibration pressed against an end of their range
+        (:meth:`~ebus_env.calibration.calibrate.CalibrationResult.pressing`): an effect that
+        was missing lets the parameters that stood in for it come back inside."""
+        return self.calibration_result.pressing() if self.calibration_result else {}
+
     def to_json(self) -> dict:
         pick = ("nrmse", "rmse_pct", "max_abs_error_pct")
         return {"label": self.label, "effects": self.effects,
                 "values": {k: float(v) for k, v in self.values.items()},
+                "at_range_end": self.range_ends,
                 "free": list(self.calibration_result.free) if self.calibration_result else [],
                 "calibration": {k: float(self.calibration[k]) for k in pick},
                 "held_out": {k: float(self.held_out[k]) for k in pick}}

@@ -81,14 +81,16 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
         if key in d.nrmse:
             n = d.nrmse[key]
             fit_rows.append([key, _f(n["calibration"], 4), _f(n["held_out"], 4),
-                             _f(n["rmse_calibration_pct"], 3), _f(n["rmse_held_out_pct"], 3)])
+                             _f(n["rmse_calibration_pct"], 3), _f(n["rmse_held_out_pct"], 3),
+                             ""])
     for r in d.ladder:
         fit_rows.append([f"ladder: {r.label}", _f(r.calibration["nrmse"], 4),
                          _f(r.held_out["nrmse"], 4), _f(r.calibration["rmse_pct"], 3),
-                         _f(r.held_out["rmse_pct"], 3)])
+                         _f(r.held_out["rmse_pct"], 3),
+                         ", ".join(f"{n} ({side})" for n, side in r.range_ends.items())])
     out.append(("Error (" + d.nrmse["blocks"] + ")",
-                ["model", "NRMSE cal", "NRMSE held-out", "RMSE cal %", "RMSE held-out %"],
-                fit_rows))
+                ["model", "NRMSE cal", "NRMSE held-out", "RMSE cal %", "RMSE held-out %",
+                 "calibrated at a range end"], fit_rows))
     return out
 
 
