@@ -113,11 +113,11 @@ def calibration_tables(result):
     """Two rich tables: fitted parameters (how well determined), and the fit."""
     from rich.table import Table
 
+    from ebus_env.calibration.calibrate import RANGE_END
+
     params = Table(title="fitted parameters", header_style="bold")
     for col in ("parameter", "value", "unit", "bounds", "determined by the data", "at an end"):
         params.add_column(col)
-    from ebus_env.calibration.calibrate import RANGE_END
-
     ends = result.pressing()
     for name in result.free:
         low, high = result.bounds[name]

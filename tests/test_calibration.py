@@ -232,7 +232,7 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     assert result.exit_code == 0, result.output
     data = json.loads((tmp_path / "cal.json").read_text())
     for key in ("params", "nrmse", "rmse_pct", "max_abs_error_pct", "correlation", "validation",
-                "wall_time_s", "evaluations"):
+                "wall_time_s", "evaluations", "at_range_end"):
         assert key in data, key
     assert set(data["params"]) == {"static_rcd.rcd_frac", "cabin_hvac.setpoint_degc"}
     assert data["validation"]["nrmse"] < 0.05
