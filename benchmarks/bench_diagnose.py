@@ -377,6 +377,10 @@ def figures(rows) -> dict:
         # the clue is right when it names a mode that takes >= 25 % of the load's energy
         "outside": share([r for r in outside if r["status"] == "outside library"
                           and r["clue"] in r["outside_modes"]], outside),
+        # "no library effect explains it" on a day with nothing hidden: the calibrated bus
+        # misses power beyond the log's noise all the same
+        "control_outside": share([r for r in control if r["status"] == "outside library"],
+                                 control),
         # a clue on a day with nothing hidden: where the calibrated bus itself misses power,
         # what a clue on an outside-library day must stand out of
         "control_clue": share([r for r in control if r["clue"]], control),
@@ -477,6 +481,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
          f"bar <= 5 %; {f['false_alarms'][1]} days")
     line("outside library: 'no library effect' + right mode", f"{100 * f['outside'][0]:.0f} %",
          f"bar >= 80 %; {f['outside'][1]} days")
+    line("control days: 'no library effect' all the same",
+         f"{100 * f['control_outside'][0]:.0f} %", f"{f['control_outside'][1]} days")
     line("control days whose report names a mode all the same", f"{100 * f['control_clue'][0]:.0f} %",
          ", ".join(f"{mode} {n}" for mode, n in f["control_modes"]) or "none")
     line("control days calibrated at an end of a range", f"{100 * f['control_ends'][0]:.0f} %",

@@ -158,3 +158,26 @@ def test_the_users_effects_for_the_outside_loads_draw_what_they_say():
     ran_s = (power_w > 0).sum() * 0.1
     assert braked_mps > 10.0  # the day brakes: this term is tested
     assert ran_s == pytest.approx(owed_s - run.trace("air_debt_s")[-1], abs=2.0)
+
+
+def test_the_figures_count_an_outside_load_only_with_its_mode_and_show_controls_alike():
+    """An outside-library day counts when the report says "no library effect" and names one
+    of the load's modes; control days that end "no library effect" all the same are counted
+    apart, so that the outside figure can be read against them."""
+    def row(expected, status, clue=None, modes=()):
+        return {"expected": expected, "status": status, "clue": clue, "verdict": None,
+                "right": expected is None, "estimate": {}, "truth": {}, "energy_kwh": None,
+                "truth_kwh": None, "time_s": 30.0, "cpu_s": 30.0, "hours": 10.0,
+                "added": "user_effects.py:Load" if expected else None, "fall": 0.1,
+                "outside_modes": list(modes), "range_ends": {}}
+
+    rows = [row("outside_library", "outside library", "idle", ["idle", "accelerating"]),
+            row("outside_library", "outside library", "idle", ["CC charging"]),
+            row("outside_library", "tie", "CC charging", ["CC charging"]),
+            row(None, "outside library", "idle"), row(None, "outside library"),
+            row(None, "noise")]
+    f = bench.figures(rows)
+    assert f["outside"] == (1 / 3, 3)
+    assert f["control_outside"] == (2 / 3, 3)
+    assert f["control_clue"] == (1 / 3, 3)
+    assert f["false_alarms"] == (0.0, 3)
