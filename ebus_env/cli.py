@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import itertools
 import sys
 import time
 from dataclasses import dataclass
@@ -593,9 +594,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.ladder import Freedom, as_effect, check_known
     from ebus_env.diagnostics.report import console_tables
-    from ebus_env.errors import LogError
+    from ebus_env.errors import ConfigError, LogError
     from ebus_env.inputs import check
-    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, same_file
 
     console = _console()
     if window_s is not None:
@@ -617,6 +618,11 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
                    choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],
                                                effects=add))
+    for normal_log, log in itertools.product(reference or [], logs):
+        if Path(normal_log).exists() and same_file(Path(normal_log), Path(log)):
+            raise ConfigError(f"--reference {normal_log} is the log being diagnosed: the "
+                              "reference is a normal day of the same bus, which the model is "
+                              "compared against. Fix: give a log of another day.")
     model = bus.build()
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)

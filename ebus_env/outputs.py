@@ -24,7 +24,7 @@ HTML_SUFFIXES = (".html", ".htm")
 YAML_SUFFIXES = (".yaml", ".yml")
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def same_file(a: Path, b: Path) -> bool:
     """True when ``a`` and ``b`` name one file (symlinks, ``..`` and hard links included)."""
     if a.resolve() == b.resolve():
         return True
@@ -52,7 +52,7 @@ def check_output(path: Path, option: str, suffixes: Iterable[str],
     path = Path(path)
     suffixes = tuple(suffixes)
     for source in inputs:
-        if source is not None and Path(source).exists() and _same_file(path, Path(source)):
+        if source is not None and Path(source).exists() and same_file(path, Path(source)):
             raise ConfigError(f"{option} {path} is an input of this command and would be "
                               "overwritten. Fix: write to another file name.")
     if path.is_dir():

@@ -90,6 +90,9 @@ def test_attribution_supports_nothing_in_noise_or_when_a_parameter_explains_it()
     y = rng.normal(0, 200, n)
     d = attribution.attribute(y, noise, cands, np.ones(n, bool))
     assert d.verdict is None and d.status == "noise" and d.significance < 3
+    # a log smoother than its stated noise: chi2 below its expectation, said as "below"
+    d = attribution.attribute(y / 4, noise, cands, np.ones(n, bool))
+    assert d.significance < -3 and f"{-d.significance:.1f} standard deviations below" in d.why
     # the same shape as a parameter of the model: a mis-set parameter is the simpler answer
     cands.append(_candidate("aux.power_w", "parameter", s))
     d = attribution.attribute(2 * s + rng.normal(0, 50, n), noise, cands, np.ones(n, bool))
@@ -647,6 +650,23 @@ def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_name
     assert report["ranking"][0]["parameters"]["cabin_hvac.ua_w_per_k"] == pytest.approx(
         450.0, rel=0.25)
     assert "beyond the reference day (control.csv)" in " ".join(result.output.split())
+
+
+def test_the_reference_day_must_be_another_log_than_the_one_diagnosed(tmp_path):
+    """A reference that is the diagnosed log itself (by another name, too) fails before any
+    work: the model would be compared against the very day it is to explain."""
+    from typer.testing import CliRunner
+
+    from ebus_env.cli import app
+
+    log = hidden.OUT_DIR / "control.csv.gz"
+    link = tmp_path / "normal.csv.gz"
+    os.symlink(log, link)
+    for normal in (log, link):
+        result = CliRunner().invoke(app, ["diagnose", str(log), "--bus", "12m",
+                                          "--reference", str(normal)])
+        assert result.exit_code == 2, result.output
+        assert "is the log being diagnosed" in " ".join(result.output.split())
 
 
 @pytest.mark.slow

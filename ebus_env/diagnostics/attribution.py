@@ -276,9 +276,10 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
     effects = [a for a in ranking if a.kind != "parameter"]
     params = [a for a in ranking if a.kind == "parameter"]
     if significance < MIN_SIGNIFICANCE:
+        side = "above" if significance >= 0 else "below"  # chi2 below n: a smooth log
         return Decision(ranking, selected, None, (
-            f"the missing power is at the noise level ({significance:.1f} standard deviations "
-            "above it): the model explains these data"), significance, "noise")
+            f"the missing power is at the noise level ({abs(significance):.1f} standard "
+            f"deviations {side} it): the model explains these data"), significance, "noise")
     # a day with nothing wrong ends here too: a calibrated model of another make of bus
     # misses power beyond the log's noise (59 of 60 control days of the validation bench)
     outside = ("no library effect explains the missing power on held-out windows{}: a load "
