@@ -476,6 +476,8 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
         profiles = _load_logs(logs, model, base, handling, console)
         check = _load_logs(validate or [], model, base, handling, console)
     free = _split([params]) if params else cfg.params
+    for name in free or ():  # an unknown name fails here, before the compile and progress bar
+        model.param_index(name)
     settings = replace(cfg.isopt, seed=seed,
                        **({} if population is None else {"population": population}),
                        **({} if iterations is None else {"iterations": iterations}))

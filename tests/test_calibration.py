@@ -247,6 +247,9 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     assert bad.exit_code == 2 and "excludes its current value" in bad.output
     missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope.csv")])
     assert missing.exit_code == 2 and "does not exist" in missing.output
+    unknown = runner.invoke(app, ["calibrate", str(a), "--params", "static_rcd.rcd"])
+    assert unknown.exit_code == 2 and "Unknown parameter 'static_rcd.rcd'" in unknown.output
+    assert "iSOPT" not in unknown.output  # refused before the search starts
 
 
 @pytest.mark.slow
