@@ -20,6 +20,7 @@ from ebus_env.diagnostics import attribution, diagnose, hidden
 from ebus_env.diagnostics.candidates import Candidate, Strength
 from ebus_env.diagnostics.ladder import improvement, split_blocks
 from ebus_env.diagnostics.residual import _slopes, correlation_time
+from ebus_env.errors import LogError
 from ebus_env.io.measured import load_log
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -650,6 +651,20 @@ def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_name
     assert report["ranking"][0]["parameters"]["cabin_hvac.ua_w_per_k"] == pytest.approx(
         450.0, rel=0.25)
     assert "beyond the reference day (control.csv)" in " ".join(result.output.split())
+
+
+def test_a_log_too_short_for_one_window_fails_saying_so(bus12, tmp_path):
+    """Two and a half minutes of log: its one window starts within the start-up the diagnosis
+    leaves out, so nothing can be compared; the error says so instead of a verdict on
+    nothing."""
+    t = np.arange(0, 150.0)
+    path = tmp_path / "short.csv"
+    speed = np.clip(40 * np.sin(2 * np.pi * t / 60), 0, None)  # km/h, stop to stop
+    pd.DataFrame({"time_s": t, "speed_kmh": speed, "soc_pct": 90 - 0.01 * t}).to_csv(
+        path, index=False)
+    log = load_log(path, bus12.build().dt_s)
+    with pytest.raises(LogError, match="No window of the log can be diagnosed.*longer log"):
+        diagnose(bus12, log.profiles)
 
 
 def test_the_reference_day_must_be_another_log_than_the_one_diagnosed(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,21 @@ def test_missing_speed_column_names_the_fix(tmp_path):
     frame = good_frame().rename(columns={"speed_kmh": "speed_km_h"})
     with pytest.raises(LogError, match="No speed column. The file has 'speed_km_h'.*columns="):
         load_log(write(tmp_path, frame))
+
+
+def test_a_column_name_given_twice_names_both_places(tmp_path):
+    """pandas would rename the second 'soc_pct' to 'soc_pct.1' and the loader would take the
+    first in silence; which one holds the SoC is the user's call."""
+    frame = good_frame()
+    frame.insert(1, "soc_pct_copy", frame["soc_pct"] - 1.0)
+    path = tmp_path / "twice.csv"
+    frame.rename(columns={"soc_pct_copy": "soc_pct"}).to_csv(path, index=False)
+    with pytest.raises(LogError, match=r"appears 2 times \(columns 2, 4\).*column 'soc_pct'"
+                                       r".*keep one of them"):
+        load_log(path)
+    frame.rename(columns={"soc_pct_copy": "soc_pct"}).to_csv(path, index=False, sep=";")
+    with pytest.raises(LogError, match="appears 2 times"):
+        load_log(path)
 
 
 def test_missing_time_column(tmp_path):
@@ -100,6 +116,16 @@ def test_speed_in_mps_written_as_kmh_is_caught(tmp_path):
     renamed = frame.rename(columns={"speed_kmh": "speed_mps"})
     log = load_log(write(tmp_path, renamed))
     assert log.profile.channels["speed_ref_mps"].max() == pytest.approx(30 / 3.6, rel=1e-3)
+
+
+def test_a_steady_speed_log_loads_without_a_unit_verdict(tmp_path):
+    """At a steady 20 km/h no acceleration tells km/h from m/s: the check stays silent (no
+    verdict, no warning from an empty percentile)."""
+    frame = good_frame().assign(speed_kmh=20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        log = load_log(write(tmp_path, frame), DT)
+    assert log.profile.channels["speed_ref_mps"] == pytest.approx(20.0 / 3.6)
 
 
 def test_soc_fraction_in_percent_column_is_caught(tmp_path):

@@ -35,6 +35,7 @@ from ebus_env.diagnostics.ladder import (
     windows_in,
 )
 from ebus_env.diagnostics.reference import Reference, measure_reference, mode_shares
+from ebus_env.errors import LogError
 from ebus_env.units import with_unit
 
 WINDOW_S = {"SoC slope": 300.0, "battery current x voltage": 60.0}
@@ -289,6 +290,16 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
     usable &= enough
     excluded = int(np.sum(enough & ~usable))
     usable &= ~(windows.start_step * dt_s < START_UP_S)
+    if not usable.any():
+        total_s = sum(p.duration_s for p in profiles)
+        length = f"{total_s:.0f} s" if total_s < 600 else f"{total_s / 60:.0f} min"
+        raise LogError(
+            f"No window of the log can be diagnosed: {len(windows)} window(s) of "
+            f"{window_s:.0f} s in {length}, none past the first {START_UP_S:.0f} s with "
+            + (f"{residual.MIN_SAMPLES} SoC samples" if basis == residual.SOC_BASIS
+               else "battery current and voltage") + " and free of data problems",
+            path=", ".join(p.name for p in profiles),
+            fix="give a longer log (an hour or more: the diagnosis compares many windows)")
     return Residual(model, dict(values), params, every, basis, window_s, windows, anchored,
                     energy, base_power, missing, residual.uncertainty_w(noise, base_power),
                     noise, usable, issues, excluded, normal)

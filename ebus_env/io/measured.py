@@ -101,21 +101,39 @@ def _read(path: Path) -> pd.DataFrame:
         raise LogError("The file does not exist", path=path, fix="check the path")
     if path.stat().st_size == 0:
         raise LogError("The file is empty", path=path, fix="give a log with a header and rows")
+    header = []
     try:
         if path.suffix.lower() in (".parquet", ".pq"):
             frame = pd.read_parquet(path)
         else:
+            sep = ","
             frame = pd.read_csv(path, dtype=str, keep_default_na=False,
                                 encoding_errors="replace")
             if frame.shape[1] == 1 and ";" in frame.columns[0]:
-                frame = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False,
+                sep = ";"
+                frame = pd.read_csv(path, sep=sep, dtype=str, keep_default_na=False,
                                     encoding_errors="replace")
+            # pandas renames a repeated name ('speed_kmh.1'): which one is meant is the
+            # user's call, not the loader's
+            header = pd.read_csv(path, sep=sep, header=None, nrows=1, dtype=str,
+                                 keep_default_na=False, encoding_errors="replace").iloc[0].tolist()
     except (pd.errors.EmptyDataError, pd.errors.ParserError, OSError, ValueError) as exc:
         raise LogError(f"The file cannot be read as a table: {exc}", path=path,
                        fix="give a CSV (comma or semicolon separated) or Parquet file") from None
+    _refuse_repeated(header, path)
     if frame.empty:
         raise LogError("The file has a header but no rows", path=path, fix="give a log with data")
     return frame
+
+
+def _refuse_repeated(names: list[str], path: Path) -> None:
+    """A column name the header holds twice fails, naming where."""
+    for name in dict.fromkeys(names):
+        where = [i + 1 for i, n in enumerate(names) if n == name]
+        if len(where) > 1:
+            raise LogError(f"The column name appears {len(where)} times (columns "
+                           f"{', '.join(map(str, where))})", path=path, column=name,
+                           fix="keep one of them, or rename the others")
 
 
 def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
@@ -316,7 +334,8 @@ def _check_units(frame_values: dict, t: np.ndarray, path: Path, check: bool) -> 
         moving = speed > 1.0
         if moving.sum() > 10 and np.nanmax(speed) < 25.0:
             accel = np.diff(speed / 3.6) / np.diff(t)
-            if np.nanpercentile(accel[accel > 0], 95) < 0.35:
+            speeding_up = accel[accel > 0]  # none at a steady speed: nothing to judge by
+            if speeding_up.size and np.nanpercentile(speeding_up, 95) < 0.35:
                 raise LogError(
                     f"Speeds look like m/s, not km/h (max {np.nanmax(speed):.1f}, accelerations "
                     "implausibly small for km/h)", path=path, column="speed_kmh",
