@@ -147,6 +147,24 @@ RANGES: dict[str, Range] = {r.name: r for r in (
           "the logged load returns power to the bus.", given="log column `logged_load_kw`"),
     Range("log_soc_pct", "%", 0.0, 100.0, "SoC in percent; a 0-1 column is `soc_frac`.",
           given="log column `soc_pct`"),
+    Range("log_grade_pct", "%", -30.0, 30.0, "Road grade in percent (the steepest streets "
+          "buses climb are about 15 %); a column of fractions is `grade_frac`.",
+          given="log column `grade_pct` (`grade_frac` x 100)"),
+    Range("log_altitude_m", "m", -500.0, 6000.0, "Altitude above sea level in metres (not "
+          "feet: multiply by 0.3048).", given="log column `altitude_m`"),
+    Range("log_passengers", "1", 0.0, 300.0, "Passengers on board, a count (a 12 m bus "
+          "carries up to about 100, an 18 m one about 160).", given="log column `passengers`"),
+    Range("log_charger_kw", "kW", 0.0, 1000.0, "Rating of the charger the bus is on, in kW "
+          "(not W); 0 where there is none.", given="log column `charger_kw`"),
+    Range("log_solar_w_per_m2", "W/m^2", 0.0, 1500.0, "Solar irradiance; clear-sky noon "
+          "gives about 1000 W/m^2.", given="log column `solar_w_per_m2`"),
+    Range("log_current_a", "A", -5000.0, 5000.0, "Pack current in A (not mA), > 0 "
+          "discharging; a preset's `scale: -1` flips a log that counts charging positive.",
+          given="log column `battery_current_a`"),
+    Range("log_voltage_v", "V", 0.0, 2000.0, "Pack voltage in V (an e-bus pack 300-800 V).",
+          open_low=True, given="log column `battery_voltage_v`"),
+    Range("log_cabin_temp_degc", "degC", -50.0, 80.0, "Cabin air temperature in degC (not "
+          "kelvin).", given="log column `cabin_temp_degc`"),
     Range("service_h", "h", 0.0, 24.0, "Service hours of an env episode.", open_low=True,
           given="env `service_h`"),
     Range("decision_s", "s", 1.0, 3600.0, "Length of an env decision.",

@@ -128,6 +128,23 @@ def test_a_steady_speed_log_loads_without_a_unit_verdict(tmp_path):
     assert log.profile.channels["speed_ref_mps"] == pytest.approx(20.0 / 3.6)
 
 
+@pytest.mark.parametrize(("column", "good", "bad"), [
+    ("passengers", 40.0, -3.0), ("charger_kw", 450.0, 450e3), ("altitude_m", 120.0, 9000.0),
+    ("grade_pct", 4.0, 45.0), ("grade_frac", 0.04, 0.45), ("solar_w_per_m2", 800.0, -5.0),
+    ("battery_current_a", 200.0, 2e5), ("battery_voltage_v", 650.0, 0.0),
+    ("cabin_temp_degc", 21.0, 294.0),
+])
+def test_every_logged_signal_has_a_physical_range(tmp_path, column, good, bad):
+    """A value outside its column's range fails naming the column and the row (a kW column
+    in W, feet for metres, kelvin for degC); the same log with a plausible value loads."""
+    pack = {"battery_current_a": 200.0, "battery_voltage_v": 650.0}  # logged together
+    frame = good_frame().assign(**{**(pack if column in pack else {}), column: good})
+    load_log(write(tmp_path, frame), DT)
+    frame.loc[7, column] = bad
+    with pytest.raises(LogError, match=rf"Values outside .*column '{column}', row 7\b"):
+        load_log(write(tmp_path, frame), DT)
+
+
 def test_soc_fraction_in_percent_column_is_caught(tmp_path):
     frame = good_frame()
     frame["soc_pct"] = frame["soc_pct"] / 100

@@ -96,6 +96,16 @@ def column_preset(name: str | Path) -> dict:
     return dict(data["columns"])
 
 
+COLUMN_RANGES = {
+    "soc_pct": "log_soc_pct", "ambient_degc": "ambient_degc", "logged_load_kw": "log_load_kw",
+    "grade_pct": "log_grade_pct", "altitude_m": "log_altitude_m",
+    "passengers": "log_passengers", "charger_kw": "log_charger_kw",
+    "solar_w_per_m2": "log_solar_w_per_m2", "battery_current_a": "log_current_a",
+    "battery_voltage_v": "log_voltage_v", "cabin_temp_degc": "log_cabin_temp_degc",
+}
+"""The canonical columns checked against a declared range (``ebus_env.inputs.RANGES``)."""
+
+
 def _read(path: Path) -> pd.DataFrame:
     if not path.exists():
         raise LogError("The file does not exist", path=path, fix="check the path")
@@ -349,10 +359,13 @@ def _check_units(frame_values: dict, t: np.ndarray, path: Path, check: bool) -> 
 
 
 def _check_range(name: str, values: np.ndarray, low: float, high: float, path: Path,
-                 fix: str) -> None:
-    bad = np.flatnonzero((values < low) | (values > high))
+                 fix: str, open_low: bool = False, scale: float = 1.0) -> None:
+    """Rows outside [low, high] (``open_low``: (low, high]) fail; ``scale`` takes the values
+    and bounds back to the column's own unit for the message."""
+    bad = np.flatnonzero((values < low) | (values > high) | ((values == low) & open_low))
     if bad.size:
-        raise LogError(f"Values outside [{low:g}, {high:g}] (e.g. {values[bad[0]]:g})",
+        raise LogError(f"Values outside {'(' if open_low else '['}{low * scale:g}, "
+                       f"{high * scale:g}] (e.g. {values[bad[0]] * scale:g})",
                        path=path, column=name, rows=bad, fix=fix)
 
 
@@ -435,18 +448,16 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     speed_mps = values[speed_col] / 3.6 if speed_col == "speed_kmh" else values[speed_col]
     speed = RANGES["log_speed_kmh"]
     _check_range(speed_col, speed_mps * 3.6, speed.low, speed.high, path, speed.why)
-    if "soc_pct" in values:
-        soc = RANGES["log_soc_pct"]
-        _check_range("soc_pct", values["soc_pct"], soc.low, soc.high, path, soc.why)
     if "soc_frac" in values:
         _check_range("soc_frac", values["soc_frac"], 0.0, 1.0, path, "SoC as a fraction: 0-1")
-    if "ambient_degc" in values:
-        amb = RANGES["ambient_degc"]
-        _check_range("ambient_degc", values["ambient_degc"], amb.low, amb.high, path, amb.why)
-    if "logged_load_kw" in values:
-        load = RANGES["log_load_kw"]
-        _check_range("logged_load_kw", values["logged_load_kw"], load.low, load.high, path,
-                     load.why)
+    if "grade_frac" in values:
+        grade = RANGES["log_grade_pct"]
+        _check_range("grade_frac", 100.0 * values["grade_frac"], grade.low, grade.high, path,
+                     grade.why, scale=0.01)
+    for column, range_name in COLUMN_RANGES.items():
+        if column in values:
+            r = RANGES[range_name]
+            _check_range(column, values[column], r.low, r.high, path, r.why, r.open_low)
     if "soc_pct" not in values and "soc_frac" not in values:
         report.warnings.append("the log has no SoC column (soc_pct or soc_frac): nothing to "
                                "compare, and a simulation starts at the given or default SoC")
