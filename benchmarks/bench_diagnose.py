@@ -317,6 +317,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "energy_kwh": d.ranking[0].get("energy_kwh") if d.verdict else None,
            "energy_interval_kwh": d.ranking[0].get("energy_interval_kwh") if d.verdict else None,
            "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
+           "footprint_pct": truth.get("summary", {}).get("soc_footprint_pct"),
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
            / 3600.0, "why": d.why, "range_ends": d.range_ends}
     expected = truth["expected_verdict"]
@@ -405,6 +406,29 @@ def figures(rows) -> dict:
     }
 
 
+FOOTPRINT_BINS_PCT = (0.0, 0.5, 1.0, 2.0, 5.0, np.inf)
+
+
+def footprint_table(rows) -> None:
+    """The library effects named right by the hidden effect's SoC footprint (the most it
+    moves the SoC against the same day without it): what a SoC log can show of an effect."""
+    days = [r for r in rows if r["expected"] not in (None, "outside_library")
+            and r.get("footprint_pct") is not None]
+    if not days:
+        return
+    print("\nNamed right by the hidden effect's SoC footprint (most it moves the SoC)")
+    edges = FOOTPRINT_BINS_PCT
+    for low, high in zip(edges[:-1], edges[1:], strict=True):
+        group = [r for r in days if low <= r["footprint_pct"] < high]
+        if not group:
+            continue
+        total = Counter(r["expected"] for r in group)
+        right = Counter(r["expected"] for r in group if r["right"])
+        line(f"{low:g} to {high:g} percentage points" if np.isfinite(high)
+             else f">= {low:g} percentage points", f"{sum(right.values())} of {len(group)}",
+             ", ".join(f"{e} {right[e]}/{n}" for e, n in total.most_common()))
+
+
 def oracle_table(rows) -> None:
     """Per hidden effect (the library's effect it should be named as; a load outside the
     library by its own name): the days named right when the log also carries the effect's
@@ -470,6 +494,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                     and "added_values" in row else "") + "; "
                  f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
     confusion(rows)
+    footprint_table(rows)
     if oracle:
         oracle_table(rows)
         return

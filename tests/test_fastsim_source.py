@@ -161,6 +161,7 @@ def test_generate_is_byte_reproducible():
     assert "passengers" not in log_a.columns and "altitude_m" not in log_a.columns
     assert 100.0 <= truth_a["strength"]["cabin_hvac.ua_w_per_k"] <= 1500.0
     assert truth_a["summary"]["hidden_kwh"] > 0.0
+    assert truth_a["summary"]["soc_footprint_pct"] > 0.0  # the heater draws on the pack
 
 
 def test_an_oracle_log_adds_the_hidden_effects_own_power():

@@ -268,6 +268,11 @@ def test_each_hidden_effect_costs_energy_where_it_should(hidden):
     case = dataclasses.replace(case, hours=2.0, start_clock_h=start)
     log, truth = truth_cases.generate(case)
     assert truth["summary"]["effect_kwh"] > 0.2
+    # a load the charger carries in full (the chiller while the charge current tapers)
+    # leaves no SoC footprint; every other effect moves the SoC
+    assert truth["summary"]["soc_footprint_pct"] >= 0.0
+    if hidden != "battery_chiller":
+        assert truth["summary"]["soc_footprint_pct"] > 0.01
     assert truth["expected_verdict"] == truth_cases.EFFECTS[hidden][0]
     assert ("altitude_m" in log) == (hidden == "road_grade")
     assert ("passengers" in log) == (hidden == "passenger_mass")

@@ -255,7 +255,8 @@ def generate(case: Case, current_voltage: bool = False,
     ``chemistry, route, climate, date, start_clock_h, hours, relative_time, seed``, the
     logged ``columns``, the day
     options and a summary (km, kWh/km at the battery, the hidden load's energy, and
-    ``effect_kwh``: what the effect adds to the energy used against the same day without it).
+    ``effect_kwh``: what the effect adds to the energy used against the same day without it;
+    ``soc_footprint_pct``: the most it moves the SoC, :func:`soc_footprint_pct`).
     """
     plan, base, ph, day, trace = day_trace(case)
     log_ss = _streams(case)[3]
@@ -312,9 +313,18 @@ def generate(case: Case, current_voltage: bool = False,
                     "effect_kwh": round((_used_j(trace) - _used_j(without)) / 3.6e6, 3),
                     "charger_kwh": round(float(trace["e_charger_j"].iloc[-1]) / 3.6e6, 3),
                     "soc_min_pct": round(100.0 * float(trace["soc_frac"].min()), 2),
-                    "soc_max_pct": round(100.0 * float(trace["soc_frac"].max()), 2)},
+                    "soc_max_pct": round(100.0 * float(trace["soc_frac"].max()), 2),
+                    "soc_footprint_pct": soc_footprint_pct(trace, without)},
     }
     return log, truth
+
+
+def soc_footprint_pct(trace: pd.DataFrame, without: pd.DataFrame) -> float:
+    """The most the hidden effect moves the SoC at any moment of the day [percentage points]:
+    what a SoC log can show of it. A charge session that runs to its stop SoC puts back what
+    a load took before it, so a load can take many kWh and leave a small footprint."""
+    gap = trace["soc_frac"].to_numpy(float) - without["soc_frac"].to_numpy(float)
+    return round(100.0 * float(np.max(np.abs(gap))), 3)
 
 
 def _atomic_write(path: Path, data: bytes) -> None:

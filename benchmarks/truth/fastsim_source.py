@@ -519,7 +519,8 @@ def generate_with_clean(case: truthsim.Case, oracle: bool = False) -> tuple[
                     "charger_kwh": round((capacity_j * (soc.iloc[-1] - soc.iloc[0]) + out_j)
                                          / 3.6e6, 3),
                     "soc_min_pct": round(100.0 * float(soc.min()), 2),
-                    "soc_max_pct": round(100.0 * float(soc.max()), 2)},
+                    "soc_max_pct": round(100.0 * float(soc.max()), 2),
+                    "soc_footprint_pct": truthsim.soc_footprint_pct(clean, without)},
         "fastsim_version": fastsim.__version__,
     }
     return log, truth, clean
