@@ -418,15 +418,18 @@ def footprint_table(rows) -> None:
         return
     print("\nNamed right by the hidden effect's SoC footprint (most it moves the SoC)")
     edges = FOOTPRINT_BINS_PCT
-    for low, high in zip(edges[:-1], edges[1:], strict=True):
-        group = [r for r in days if low <= r["footprint_pct"] < high]
-        if not group:
-            continue
-        total = Counter(r["expected"] for r in group)
-        right = Counter(r["expected"] for r in group if r["right"])
-        line(f"{low:g} to {high:g} percentage points" if np.isfinite(high)
-             else f">= {low:g} percentage points", f"{sum(right.values())} of {len(group)}",
-             ", ".join(f"{e} {right[e]}/{n}" for e, n in total.most_common()))
+    for source in sorted({r["source"] for r in days}):
+        for low, high in zip(edges[:-1], edges[1:], strict=True):
+            group = [r for r in days if r["source"] == source
+                     and low <= r["footprint_pct"] < high]
+            if not group:
+                continue
+            total = Counter(r["expected"] for r in group)
+            right = Counter(r["expected"] for r in group if r["right"])
+            line(f"{source}: {low:g} to {high:g} percentage points" if np.isfinite(high)
+                 else f"{source}: >= {low:g} percentage points",
+                 f"{sum(right.values())} of {len(group)}",
+                 ", ".join(f"{e} {right[e]}/{n}" for e, n in total.most_common()))
 
 
 def oracle_table(rows) -> None:

@@ -186,14 +186,17 @@ def test_the_figures_count_an_outside_load_only_with_its_mode_and_show_controls_
 def test_the_footprint_table_counts_the_days_named_right_in_each_bin(capsys):
     """Library-effect days grouped by how far the hidden effect moves the SoC; control and
     outside-library days are left out."""
-    def row(expected, footprint, right):
-        return {"expected": expected, "footprint_pct": footprint, "right": right}
+    def row(expected, footprint, right, source="truthsim"):
+        return {"expected": expected, "footprint_pct": footprint, "right": right,
+                "source": source}
 
     bench.footprint_table([row("road_grade", 3.0, True), row("passenger_mass", 0.3, False),
                            row("regen_soc_limit", 0.4, True), row(None, 0.0, True),
-                           row("outside_library", 0.2, False)])
+                           row("outside_library", 0.2, False),
+                           row("cabin_hvac", 6.0, False, "fastsim")])
     out = capsys.readouterr().out
-    assert "0 to 0.5 percentage points" in out and "1 of 2" in out
+    assert "truthsim: 0 to 0.5 percentage points" in out and "1 of 2" in out
     assert "passenger_mass 0/1" in out and "regen_soc_limit 1/1" in out
-    assert "2 to 5 percentage points" in out and "road_grade 1/1" in out
+    assert "truthsim: 2 to 5 percentage points" in out and "road_grade 1/1" in out
+    assert "fastsim: >= 5 percentage points" in out and "cabin_hvac 0/1" in out
     assert "0.5 to 1 " not in out  # no days there
