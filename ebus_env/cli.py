@@ -598,7 +598,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     from ebus_env.diagnostics.report import console_tables
     from ebus_env.errors import ConfigError, LogError
     from ebus_env.inputs import check
-    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, same_file
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, same_bytes, same_file
 
     console = _console()
     if window_s is not None:
@@ -621,10 +621,12 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
                    choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],
                                                effects=add))
     for normal_log, log in itertools.product(reference or [], logs):
-        if Path(normal_log).exists() and same_file(Path(normal_log), Path(log)):
-            raise ConfigError(f"--reference {normal_log} is the log being diagnosed: the "
-                              "reference is a normal day of the same bus, which the model is "
-                              "compared against. Fix: give a log of another day.")
+        if Path(normal_log).exists() and Path(log).exists() and (
+                same_file(Path(normal_log), Path(log)) or same_bytes(normal_log, log)):
+            raise ConfigError(f"--reference {normal_log} is the log being diagnosed ({log}) "
+                              "or a copy of it: the reference is a normal day of the same bus, "
+                              "which the model is compared against. Fix: give a log of another "
+                              "day.")
     model = bus.build()
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)

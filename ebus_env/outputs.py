@@ -10,6 +10,7 @@ writes each output to a temporary file in the same folder and renames it over th
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -32,6 +33,14 @@ def same_file(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def same_bytes(a: Path, b: Path) -> bool:
+    """True when files ``a`` and ``b`` hold the same bytes (a copy under another name)."""
+    a, b = Path(a), Path(b)
+    if a.stat().st_size != b.stat().st_size:
+        return False
+    return hashlib.sha256(a.read_bytes()).digest() == hashlib.sha256(b.read_bytes()).digest()
 
 
 def check_output(path: Path, option: str, suffixes: Iterable[str],

@@ -668,16 +668,17 @@ def test_a_log_too_short_for_one_window_fails_saying_so(bus12, tmp_path):
 
 
 def test_the_reference_day_must_be_another_log_than_the_one_diagnosed(tmp_path):
-    """A reference that is the diagnosed log itself (by another name, too) fails before any
-    work: the model would be compared against the very day it is to explain."""
+    """A reference that is the diagnosed log itself (by another name, or a copy) fails before
+    any work: the model would be compared against the very day it is to explain."""
     from typer.testing import CliRunner
 
     from ebus_env.cli import app
 
     log = hidden.OUT_DIR / "control.csv.gz"
-    link = tmp_path / "normal.csv.gz"
+    link, copy = tmp_path / "normal.csv.gz", tmp_path / "copy.csv.gz"
     os.symlink(log, link)
-    for normal in (log, link):
+    shutil.copy(log, copy)
+    for normal in (log, link, copy):
         result = CliRunner().invoke(app, ["diagnose", str(log), "--bus", "12m",
                                           "--reference", str(normal)])
         assert result.exit_code == 2, result.output
