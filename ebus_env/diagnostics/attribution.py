@@ -276,10 +276,9 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
     effects = [a for a in ranking if a.kind != "parameter"]
     params = [a for a in ranking if a.kind == "parameter"]
     if significance < MIN_SIGNIFICANCE:
-        side = "above" if significance >= 0 else "below"  # chi2 below n: a smooth log
         return Decision(ranking, selected, None, (
-            f"the missing power is at the noise level ({abs(significance):.1f} standard "
-            f"deviations {side} it): the model explains these data"), significance, "noise")
+            f"the missing power is at the noise level ({standing(significance)} it): the model "
+            "explains these data"), significance, "noise")
     # a day with nothing wrong ends here too: a calibrated model of another make of bus
     # misses power beyond the log's noise (59 of 60 control days of the validation bench)
     outside = ("no library effect explains the missing power on held-out windows{}: a load "
@@ -321,6 +320,13 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
             "mis-set parameter is the simpler explanation; calibrate it (--calibrate) before "
             "adding an effect"), significance, "parameter")
     return Decision(ranking, selected, top.name, "", significance, "named")
+
+
+def standing(significance: float) -> str:
+    """``4.5 standard deviations above`` (or ``below``: chi2 under its expectation, a log
+    smoother than its stated noise)."""
+    side = "above" if significance >= 0 else "below"
+    return f"{abs(significance):.1f} standard deviations {side}"
 
 
 def _significance(y: np.ndarray, noise: np.ndarray) -> float:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ebus_env.calibration.calibrate import RANGE_END
+from ebus_env.diagnostics.attribution import standing
 from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.units import shown_unit
 
@@ -144,7 +145,7 @@ def write_html(d, path: str | Path) -> None:
         settings={"missing power from": d.basis,
                   **({"relative to the reference day": ", ".join(d.reference["logs"])}
                      if d.reference else {}), "window": f"{d.window_s:g} s",
-                  "significance": f"{d.significance:.1f} standard deviations above noise",
+                  "significance": f"{standing(d.significance)} noise",
                   "windows excluded for data problems": d.excluded_windows,
                   **({"calibrated at an end of the range searched": ", ".join(
                       f"{n} ({side})" for n, side in d.range_ends.items())}
