@@ -191,6 +191,13 @@ def main() -> None:
         line(f"{label}: reserved B17 / B38 / A08 with these values",
              " / ".join(f"{after[t]:.3f}" for t in ("B17", "B38", "A08")),
              "defaults: " + " / ".join(f"{before[t]:.3f}" for t in ("B17", "B38", "A08")))
+        if free is None:  # the same fit with the charge the trips' current counts (--charge)
+            counted = calibrate(i3, logs["B16"], free, settings=replace(settings, seed=0),
+                                validate=logs["B03"], charge=True)
+            for how, r in (("SoC", result), ("SoC and counted charge", counted)):
+                line(f"{label}, fitting {how}: NRMSE, energy-drawn error B16 / B03",
+                     " / ".join(f"{f['nrmse']:.4f}, {f['energy_error_pct']:+.1f} %"
+                                for f in (r.fit, r.validation)), f"{r.wall_time_s:.1f} s")
 
 
 if __name__ == "__main__":

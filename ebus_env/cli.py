@@ -357,6 +357,9 @@ def calibrate(
         "--range", help="Prior range: effect.param=low:high, narrowing its bounds (repeatable)")]
     = None,
     windowed: Annotated[bool, typer.Option(help="Windowed (online) tuning")] = False,
+    charge: Annotated[bool, typer.Option(
+        help="Fit the charge counted from the logs' battery current beside the SoC (a BMS "
+             "log: it resolves the charge far below the SoC's steps)")] = False,
     validate: Annotated[list[Path] | None, typer.Option(
         help="Validation log(s): scored with the fitted parameters, never tuned on")] = None,
     seed: Annotated[int, typer.Option(help="Random seed of iSOPT")] = 0,
@@ -410,7 +413,8 @@ def calibrate(
         _calibrate(
             logs, BusChoice(bus, with_, without, overlay),
             LogHandling(columns, gaps, fill, not no_unit_check, start_time), params=params, fix=fix,
-            range_=range_, windowed=windowed, validate=validate, seed=seed, population=population,
+            range_=range_, windowed=windowed, charge=charge, validate=validate, seed=seed,
+            population=population,
             iterations=iterations, categorical_load=categorical_load, config=config, sparse=sparse,
             sparse_cycle=sparse_cycle, out=out, json_path=json_path, plot=plot, history=history)
 
@@ -434,7 +438,7 @@ def _ranges(items: list[str] | None) -> dict[str, tuple[float, float]]:
 
 
 def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, range_, windowed,
-               validate, seed, population, iterations, categorical_load, config, sparse,
+               charge, validate, seed, population, iterations, categorical_load, config, sparse,
                sparse_cycle, out, json_path, plot, history):
     from dataclasses import replace
 
@@ -496,7 +500,7 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
 
         result = run_calibration(
             model, profiles, free, {**cfg.ranges, **_ranges(range_)}, fixed, settings,
-            validate=check or None, windowed=windowed,
+            validate=check or None, windowed=windowed, charge=charge,
             categorical_load=categorical_load or cfg.categorical_load, progress=progress,
             window_settings=cfg.windows, polish_starts=None if windowed else cfg.polish_starts)
     for line in result.notes:
@@ -556,8 +560,8 @@ def diagnose(
     window_s: Annotated[float | None, typer.Option(
         help="Window length [s] (default: 300 from SoC, 60 from current x voltage)")] = None,
     soc_only: Annotated[bool, typer.Option(
-        "--soc-only", help="Diagnose from SoC alone where the log has battery current and "
-        "voltage too (see docs/validation.md: run both)")] = False,
+        "--soc-only", help="Diagnose from SoC alone where the log has the pack's current "
+        "too (see docs/validation.md: run both)")] = False,
     config: Annotated[str | None, typer.Option(
         help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml): its "
              "params free in place of the paper's, its ranges, fixed values and iSOPT "
@@ -633,10 +637,10 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     normal = _load_logs(reference, model, model.params, handling, console) \
         if reference else []
     if soc_only:
-        from ebus_env.diagnostics.residual import POWER_SIGNALS
+        from ebus_env.diagnostics.residual import PACK_SIGNALS
 
-        profiles = [p.without_measured(*POWER_SIGNALS) for p in profiles]
-        normal = [p.without_measured(*POWER_SIGNALS) for p in normal]
+        profiles = [p.without_measured(*PACK_SIGNALS) for p in profiles]
+        normal = [p.without_measured(*PACK_SIGNALS) for p in normal]
     without_soc = sorted({p.name for p in [*profiles, *normal] if "soc_frac" not in p.measured})
     if without_soc:
         raise LogError(f"diagnose compares simulated with measured SoC, and the log(s) "

@@ -291,3 +291,34 @@ def test_calibration_never_ends_worse_than_its_start():
     searched = calibrate(model, profiles, settings=ISOPTSettings(seed=0, iterations=5),
                          polish_starts=1)
     assert searched.fit["nrmse"] <= before * (1 + 1e-9)
+
+
+def test_the_charge_counted_from_the_current_is_fitted_beside_the_soc(tmp_path, bus12, model):
+    """On a BMS log of the model's own day, the charge counted from the logged current matches
+    the model's at the true values (the sign, the capacity and the coulombic efficiency are
+    right). A larger pack moves nearly the same charge (only its charging limits, which scale
+    with it, change it): it shows in the SoC; a larger auxiliary load moves more charge and
+    shows in both."""
+    # logged at the model's step: the current held over each step is the model's own
+    frame = synthetic_log(model, twin_day(bus12, 2.0), TRUTH, soc_start=0.95, period_s=DT,
+                          soc_step_pct=0.1)
+    profiles = load_log(write_log(tmp_path, frame)).profiles
+    base = {**TRUTH, "rint_battery.cell_capacity_ah": model.params[
+        model.param_index("rint_battery.cell_capacity_ah")],
+        "auxiliaries.base_power_w": model.params[model.param_index("auxiliaries.base_power_w")]}
+    free = list(base)
+    soc_only = CalibrationProblem(model, profiles, free)
+    both = CalibrationProblem(model, profiles, free, charge=True)
+    variants = [base, {**base, "rint_battery.cell_capacity_ah":
+                       1.3 * base["rint_battery.cell_capacity_ah"]},
+                {**base, "auxiliaries.base_power_w": base["auxiliaries.base_power_w"] + 3000.0}]
+    soc = soc_only.cost(soc_only.points(variants))
+    charge = np.sqrt(np.maximum(2.0 * both.cost(both.points(variants)) ** 2 - soc**2, 0.0))
+    assert charge[0] < 0.002  # the counted charge is the model's own
+    assert soc[1] > 20 * soc[0] and charge[1] < 0.5 * soc[1]  # a pack 30 % larger
+    assert charge[2] > 0.5 * soc[2] and charge[2] > 20 * soc[0]  # 3 kW more load
+    r = both.residuals(both.points(variants))
+    assert np.sqrt(np.sum(r**2, axis=1)) == pytest.approx(both.cost(both.points(variants)))
+    frame.drop(columns=["battery_current_a"]).to_csv(tmp_path / "soc.csv", index=False)
+    with pytest.raises(ConfigError, match="battery current"):
+        CalibrationProblem(model, load_log(tmp_path / "soc.csv").profiles, free, charge=True)

@@ -336,7 +336,7 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
               progress: Callable[[int, float, int], None] | None = None,
               window_settings=None, polish_starts: int | None = None,
               start: Sequence[Mapping[str, float]] = (), blocks: Blocks | None = None,
-              validate_blocks: Blocks | None = None) -> CalibrationResult:
+              validate_blocks: Blocks | None = None, charge: bool = False) -> CalibrationResult:
     """Fit the free parameters of ``model`` to the measured SoC of ``profiles``.
 
     Offline: one iSOPT run over the whole data (the population evaluated in one batched call of
@@ -344,15 +344,17 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     best distinct points it found (default 4; 0 for none); the points in ``start`` (values by
     name, the model's own for the free parameters one omits) join the initial population.
     ``blocks`` and ``validate_blocks`` score only some blocks of the profiles (see
-    :class:`~ebus_env.calibration.problem.Blocks`). Windowed: see
-    :mod:`ebus_env.calibration.windowed` (no polish by default: it would cost full-day runs).
+    :class:`~ebus_env.calibration.problem.Blocks`); ``charge`` fits the charge counted from
+    the logged pack current too (see :class:`~ebus_env.calibration.problem.CalibrationProblem`).
+    Windowed: see :mod:`ebus_env.calibration.windowed` (no polish by default: it would cost
+    full-day runs).
     Then the Jacobian and the other local optima tell how well the data determines each
     parameter, and the fitted model is scored on the calibration and ``validate`` profiles.
     """
     t0 = time.perf_counter()
     settings = settings or ISOPTSettings()
     problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks,
-                                 blocks=blocks)
+                                 blocks=blocks, charge=charge)
     windows: list[dict] = []
     # the starting values (the model's own, clipped to the box) are a candidate like any
     # other: the search starts from them and the result never ends worse than they do

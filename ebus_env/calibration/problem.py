@@ -11,6 +11,17 @@ positive; simulated SoC below 10 %. Charging events shorter than one minute are 
 the data, not of a candidate: they are reported as warnings (a constant penalty would only
 shift every cost).
 
+On a log of the pack's current (``charge=True``) the charge it counts is fitted too: a BMS
+log resolves the charge moved to far below its SoC's 0.1 % steps, which pins what a SoC log
+blurs (a drivetrain loss while driving against an auxiliary load all day). Both in SoC points
+of the configured pack, counted from the start of each block (or of the log)::
+
+    NRMSE_Q = rms( (SoC_sim(t) - SoC_0) Q / Q_0 + int_0^t eta(I) I dt / (3600 Q_0) ) / span,
+    J = sqrt((NRMSE^2 + NRMSE_Q^2) / 2) + penalties
+
+(Q: the candidate's capacity, Q_0 the starting one; the current counts > 0 discharging, and
+charge goes in at the candidate's coulombic efficiency eta, as in the model's own count.)
+
 A whole population runs in one batched call of the compiled core, in chunks of the day: after
 each chunk the SoC error so far gives a lower bound on a candidate's final cost, and candidates
 that can no longer beat the population's worst are dropped (the upper-bound strategy).
@@ -87,6 +98,23 @@ def outside(x: np.ndarray, low: float | None, high: float | None, scale: float) 
     return total
 
 
+def logs_current(profile: Profile) -> bool:
+    """Whether a log has the pack current at every row (its charge can be fitted)."""
+    current = profile.measured.get("battery_current_a")
+    return current is not None and bool(np.isfinite(current).all())
+
+
+def capacity_ah(model, matrix: np.ndarray) -> np.ndarray:
+    """Pack capacity [Ah] of parameter rows, at the model's starting state (one step)."""
+    matrix = np.atleast_2d(matrix)
+    states = np.array([model.initial_state(row, {}) for row in matrix])
+    i = model.trace_names.index("capacity_ah")
+    out = np.zeros((len(matrix), 1, 1), np.float32)
+    model.run(matrix, states, np.zeros((1, len(model.input_names), 2)), n_steps=1,
+              record_every=1, record_sel=np.array([i], np.int64), record_out=out)
+    return out[:, 0, 0].astype(float)
+
+
 @dataclass(frozen=True)
 class Blocks:
     """Blocks of the profiles: the model runs through each profile without a break (every
@@ -116,6 +144,15 @@ class _Data:
     first: dict
     initial: dict
     anchors: dict  # row -> measured SoC the model restarts from there
+    start_soc: np.ndarray  # per compared row: the SoC the model ran from (its block's start)
+    # per compared row: charge out of the pack and into it since that start, / (3600 Q_0)
+    discharged: np.ndarray | None
+    charged: np.ndarray | None
+
+    def counted(self, eta: np.ndarray) -> np.ndarray:
+        """(n, rows) SoC change counted from the current, charge going in at efficiencies
+        ``eta`` (n,)."""
+        return -(self.discharged[None, :] - eta[:, None] * self.charged[None, :])
 
     def edges(self, chunks: int) -> list[int]:
         """Rows where a run stops: chunk ends and anchors."""
@@ -152,13 +189,16 @@ class CalibrationProblem:
     blocks
         Score only some blocks of each profile, the SoC restarting at each block's start
         (held-out validation); default: every sample, one run from the first.
+    charge
+        Fit the charge counted from the logged pack current too (every profile needs
+        ``battery_current_a``).
     """
 
     def __init__(self, model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
                  bounds: Mapping[str, Sequence[float]] | None = None,
                  fixed: Mapping[str, float] | None = None, categorical_load: bool = False,
                  chunks: int = 8, initial: Sequence[Mapping[str, float]] | None = None,
-                 blocks: Blocks | None = None):
+                 blocks: Blocks | None = None, charge: bool = False):
         self.model = model
         self.notes: list[str] = []
         self.warnings: list[str] = []
@@ -199,8 +239,10 @@ class CalibrationProblem:
                     f"value inside (--fix {name}=...).")
         self.categorical = categorical_load and "passenger_load.load_frac" in self.free
         self.chunks = max(1, int(chunks))
+        # Q_0, the pack the counted charge is expressed in (a record run: only when needed)
+        self.capacity_ah = float(capacity_ah(model, self.base)[0]) if charge else None
         initial = list(initial) if initial is not None else [{} for _ in profiles]
-        self.data = [self._prepare(p, dict(init), blocks, k)
+        self.data = [self._prepare(p, dict(init), blocks, k, charge)
                      for k, (p, init) in enumerate(zip(profiles, initial, strict=True))]
         self.soc_index = model.state_names.index("soc_frac")
         all_meas = np.concatenate([d.measured for d in self.data])
@@ -209,12 +251,23 @@ class CalibrationProblem:
         if self.span <= 0:
             raise ConfigError("The measured SoC never changes: there is nothing to fit. Give a "
                               "log in which the battery is used (or charged).")
+        self.charge = charge
+        if charge:
+            names = [n for n in model.param_names if n.endswith(".coulombic_efficiency")]
+            self.eta_index = model.param_index(names[0]) if names else None
+            all_charge = np.concatenate([d.counted(self.eta(self.base[None, :]))[0]
+                                         for d in self.data])
+            self.charge_span = float(np.ptp(all_charge))
+            if self.charge_span <= 0:
+                raise ConfigError("The logged battery current never moves any charge: there "
+                                  "is nothing to fit. Give a log in which the pack is used.")
         self.constraints = [c for c in CONSTRAINTS if c.param in model.param_names]
         self.evaluations = 0
         self.simulated_steps = 0
 
     # -- data ------------------------------------------------------------------------------
-    def _prepare(self, profile: Profile, initial: dict, blocks: Blocks | None, k: int) -> _Data:
+    def _prepare(self, profile: Profile, initial: dict, blocks: Blocks | None, k: int,
+                 charge: bool) -> _Data:
         soc = profile.measured.get("soc_frac")
         if soc is None or not np.isfinite(soc).any():
             raise ConfigError(f"Profile '{profile.name}' has no measured SoC: calibration fits "
@@ -245,7 +298,31 @@ class CalibrationProblem:
                 f"{', '.join(f'{starts[i] * profile.dt_s:.0f} s' for i in short[:5])})")
         initial = {**self.model.measured_states(profile), **initial}
         soc_start = anchors.get(0, float(soc[rows[0]]))
-        return _Data(profile, inputs, mask, rows, soc[rows], soc_start, first, initial, anchors)
+        starts = np.array(sorted({0, *anchors}))
+        start_of = starts[np.searchsorted(starts, rows, side="right") - 1]
+        start_soc = np.array([anchors.get(int(a), soc_start) for a in start_of])
+        discharged = charged = None
+        if charge:
+            if not logs_current(profile):
+                raise ConfigError(f"Profile '{profile.name}' has no battery current at every "
+                                  "row: the charge it counts cannot be fitted. Fit the SoC "
+                                  "alone, or give a log with 'battery_current_a'.")
+            current = profile.measured["battery_current_a"]
+
+            def since_start(part):  # [Q_0] moved since each row's block started
+                ah = np.concatenate([[0.0], np.cumsum(part[:-1]) * profile.dt_s / 3600.0])
+                return (ah[rows] - ah[start_of]) / self.capacity_ah
+
+            discharged = since_start(np.maximum(current, 0.0))
+            charged = since_start(np.maximum(-current, 0.0))
+        return _Data(profile, inputs, mask, rows, soc[rows], soc_start, first, initial, anchors,
+                     start_soc, discharged, charged)
+
+    def eta(self, matrix: np.ndarray) -> np.ndarray:
+        """Coulombic efficiency of parameter rows (1 where the model has none)."""
+        if self.eta_index is None:
+            return np.ones(len(matrix))
+        return matrix[:, self.eta_index]
 
     # -- parameters ------------------------------------------------------------------------
     def values(self, u: np.ndarray) -> np.ndarray:
@@ -288,9 +365,12 @@ class CalibrationProblem:
         n = len(matrix)
         fixed_part = self.parameter_penalties(matrix)
         sse = np.zeros(n)
+        charge_sse = np.zeros(n)
+        if self.charge:
+            ratio = capacity_ah(self.model, matrix) / self.capacity_ah
+            eta = self.eta(matrix)
         soc_min = np.full(n, np.inf)
         alive = np.arange(n)
-        scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
         for d in self.data:
             if alive.size == 0:
                 break
@@ -309,29 +389,55 @@ class CalibrationProblem:
                                n_steps=b - a, record_out=out, sample_mask=d.mask, acc=acc,
                                lanes=True)
                 self.simulated_steps += len(alive) * (b - a)
-                err = out[:, :, 0].astype(float) - d.measured[in_chunk]
+                sim = out[:, :, 0].astype(float)
+                err = sim - d.measured[in_chunk]
                 sse[alive] += np.sum(err * err, axis=1)
+                if self.charge:
+                    moved = (sim - d.start_soc[in_chunk]) * ratio[alive, None]
+                    counted = d.counted(eta[alive])[:, in_chunk]
+                    charge_sse[alive] += np.sum((moved - counted) ** 2, axis=1)
                 soc_min[alive] = np.minimum(soc_min[alive], acc[:, self.model.accumulator_names
                                                                  .index("soc_min")])
-                bound = (np.sqrt(sse[alive]) * scale + fixed_part[alive]
+                bound = (self.fit_cost(sse[alive], charge_sse[alive]) + fixed_part[alive]
                          + penalty(SOC_FLOOR_FRAC - soc_min[alive], SOC_FLOOR_FRAC))
                 keep = bound <= threshold
                 if not keep.all():
                     states, acc = states[keep], acc[keep]
                     alive = alive[keep]
         self.evaluations += n
-        return (np.sqrt(sse) * scale + fixed_part
+        return (self.fit_cost(sse, charge_sse) + fixed_part
                 + penalty(SOC_FLOOR_FRAC - soc_min, SOC_FLOOR_FRAC))
 
+    def fit_cost(self, sse: np.ndarray, charge_sse: np.ndarray) -> np.ndarray:
+        """The NRMSE of the SoC from its sum of squared errors; with ``charge``, the rms of it
+        and the NRMSE of the counted charge."""
+        nrmse = np.sqrt(sse / self.n_samples) / self.span
+        if not self.charge:
+            return nrmse
+        charge = np.sqrt(charge_sse / self.n_samples) / self.charge_span
+        return np.sqrt(0.5 * (nrmse**2 + charge**2))
+
     def residuals(self, u: np.ndarray) -> np.ndarray:
-        """Scaled SoC residuals (n, n_samples), (sim - meas) / (span sqrt(n_samples)), whose
-        norm is the NRMSE: for least-squares polishing and the Jacobian (no penalties)."""
+        """Scaled residuals (n, n_samples), (sim - meas) / (span sqrt(n_samples)), whose norm
+        is the NRMSE (with ``charge``, the counted charge's scaled by its span follow, and the
+        norm is the cost's rms of the two): for least-squares polishing and the Jacobian (no
+        penalties)."""
         matrix = self.params(u)
-        parts = []
+        parts, charges = [], []
         scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
+        if self.charge:
+            ratio = capacity_ah(self.model, matrix) / self.capacity_ah
+            eta = self.eta(matrix)
         for d in self.data:
-            parts.append((self.simulate(d, matrix) - d.measured) * scale)
+            sim = self.simulate(d, matrix)
+            parts.append((sim - d.measured) * scale)
+            if self.charge:
+                moved = (sim - d.start_soc) * ratio[:, None]
+                charges.append((moved - d.counted(eta))
+                               / (np.sqrt(self.n_samples) * self.charge_span))
         self.evaluations += len(matrix)
+        if self.charge:
+            return np.sqrt(0.5) * np.concatenate(parts + charges, axis=1)
         return np.concatenate(parts, axis=1)
 
     def simulate(self, d: _Data, matrix: np.ndarray) -> np.ndarray:

@@ -121,7 +121,8 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
             for k, (i, end, category) in enumerate(steps):
                 data_seen = profiles[:i] + [profiles[i].slice(0, end)]
                 sub = CalibrationProblem(problem.model, data_seen, problem.free, bounds, fixed,
-                                         problem.categorical, problem.chunks)
+                                         problem.categorical, problem.chunks,
+                                         charge=problem.charge)
                 row = {"pass": sweep + 1, "end_h": (sum(p.duration_s for p in profiles[:i])
                                                     + end * profiles[i].dt_s) / 3600.0,
                        "category": category}
