@@ -40,7 +40,8 @@ def synthetic_log(model, profile: Profile, params: Mapping[str, float] | None = 
         Other initial states (``cabin_temp_degc=...``).
 
     Columns: ``time_s, speed_kmh, soc_pct, ambient_degc, charging``, ``grade_frac`` and
-    ``passengers`` when the profile has them, ``battery_current_a, battery_voltage_v``.
+    ``passengers`` when the profile has them, ``battery_current_a, battery_voltage_v`` (their
+    means over each period).
     """
     import pandas as pd
 
@@ -67,8 +68,11 @@ def synthetic_log(model, profile: Profile, params: Mapping[str, float] | None = 
         rating = profile.channels["charger_rating_w"][rows]
         if np.isfinite(rating).any():
             frame["charger_kw"] = np.where(np.isfinite(rating), rating / 1e3, 0.0)
-    frame["battery_current_a"] = result.trace("battery_current_a")[rows]
-    frame["battery_voltage_v"] = result.trace("battery_voltage_v")[rows]
+    # a BMS logs its sensors' mean over each period (what its coulomb count integrates): an
+    # instant's value would alias the model's steps within a period
+    counts = np.diff(np.append(rows, profile.n_steps))
+    for name in ("battery_current_a", "battery_voltage_v"):
+        frame[name] = np.add.reduceat(result.trace(name), rows) / counts
     if gap_s is not None:
         frame = frame[(frame.time_s < gap_s[0]) | (frame.time_s >= gap_s[1])]
     return frame.reset_index(drop=True)

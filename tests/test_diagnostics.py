@@ -300,7 +300,7 @@ def bmw_no_heating():
 
 def test_bmw_winter_trips_without_heating_name_cabin_heating(bmw_no_heating):
     d = diagnose(bmw_no_heating, bmw("B16", "B03"))
-    assert d.basis == "battery current x voltage"
+    assert d.basis == "battery current"
     assert d.verdict == "cabin_hvac"
     heater = window_mean(d, "heating_power_can_kw")
     ok = d.usable
@@ -448,12 +448,13 @@ def test_command_line_diagnose(tmp_path):
 
 @pytest.mark.slow
 def test_soc_only_diagnoses_a_bms_log_from_its_soc(tmp_path):
-    """A BMW trip logs current and voltage: diagnosed from 1-min power windows, or with
-    ``--soc-only`` from 5-min SoC slopes, the log and the model otherwise the same."""
+    """A BMW trip logs current and voltage: diagnosed from the charge its current counts, in
+    1-min windows (a 26-min trip: 5-min ones would be too few), or with ``--soc-only`` from
+    5-min SoC slopes, the log and the model otherwise the same."""
     from typer.testing import CliRunner
 
     from ebus_env.cli import app
-    from ebus_env.diagnostics.residual import POWER_BASIS, SOC_BASIS
+    from ebus_env.diagnostics.residual import CURRENT_BASIS, SOC_BASIS
 
     trip = ROOT / "data/measured/bmw_i3_tum/TripB03_1hz.csv"
     reports = {}
@@ -463,7 +464,7 @@ def test_soc_only_diagnoses_a_bms_log_from_its_soc(tmp_path):
                                           "bmw_i3_tum", "--json", str(out), *flag])
         assert result.exit_code == 0, result.output
         reports[bool(flag)] = json.loads(out.read_text())
-    assert (reports[False]["basis"], reports[True]["basis"]) == (POWER_BASIS, SOC_BASIS)
+    assert (reports[False]["basis"], reports[True]["basis"]) == (CURRENT_BASIS, SOC_BASIS)
     assert (reports[False]["window_s"], reports[True]["window_s"]) == (60.0, 300.0)
 
 
@@ -689,13 +690,13 @@ def test_the_reference_day_must_be_another_log_than_the_one_diagnosed(tmp_path):
 def test_on_a_bms_log_the_calibration_fits_the_buss_brake_blending(tmp_path):
     """A bus whose motor takes 70 % of the braking force (the library's 12 m bus: all of it),
     nothing hidden. With the pack's current and voltage logged, the calibration frees the
-    blending share and moves it most of the way there (it fits SoC, where the share trades
-    off with the regen cutoff speed), and no effect is named; on the same day's SoC log the
+    blending share and, fitting the counted charge beside the SoC, moves it to within 0.1 of
+    the truth, and no effect is named; on the same day's SoC log the
     share keeps its configured value (SoC cannot tell it from a regen limit at high SoC)."""
     from dataclasses import replace
 
     from ebus_env.diagnostics.ladder import nuisance_ranges
-    from ebus_env.diagnostics.residual import POWER_BASIS
+    from ebus_env.diagnostics.residual import CURRENT_BASIS
     from ebus_env.synthetic import synthetic_log
 
     case = replace(hidden.case("control"), truth={"regen_cutoff.max_share": 0.7})
@@ -706,7 +707,7 @@ def test_on_a_bms_log_the_calibration_fits_the_buss_brake_blending(tmp_path):
     frame.to_csv(tmp_path / "bms.csv", index=False)
     d = diagnose(hidden.baseline_bus(case), load_log(tmp_path / "bms.csv").profiles,
                  calibrate=True)
-    assert d.basis == POWER_BASIS
+    assert d.basis == CURRENT_BASIS
     assert d.calibration["params"]["regen_cutoff.max_share"] == pytest.approx(0.7, abs=0.1)
     assert d.verdict is None, d.why
     frame.drop(columns=["battery_current_a", "battery_voltage_v"]).to_csv(
@@ -714,3 +715,33 @@ def test_on_a_bms_log_the_calibration_fits_the_buss_brake_blending(tmp_path):
     model = hidden.baseline_bus(case).build(hidden.DT_S)
     assert "regen_cutoff.max_share" not in nuisance_ranges(
         model, load_log(tmp_path / "soc.csv").profiles)
+
+
+def test_on_a_bms_log_the_missing_power_is_the_charge_the_current_counts(bus12, tmp_path):
+    """The model's own 2 h day with its pack current logged: the model misses nothing in any
+    window; with 3 kW less auxiliary load it misses 3 kW in every window; and a voltage
+    sensor 5 % off changes nothing (the voltage is not used)."""
+    from dataclasses import replace
+
+    from ebus_env.cycles import service_day
+    from ebus_env.diagnostics.diagnose import residual_stage
+    from ebus_env.diagnostics.residual import CURRENT_BASIS
+    from ebus_env.synthetic import synthetic_log
+
+    model = bus12.build()
+    service = replace(bus12.service, layover_charger_kw=None)
+    frame = synthetic_log(model, service_day("sort2", 2.0, model.dt_s, service), soc_start=0.9)
+    base_w = model.params[model.param_index("auxiliaries.base_power_w")]
+    missing = []
+    for gain, less_w in ((1.0, 0.0), (1.0, 3000.0), (1.05, 3000.0)):
+        log = frame.assign(battery_voltage_v=gain * frame.battery_voltage_v)
+        log.to_csv(tmp_path / "bms.csv", index=False)
+        res = residual_stage(model, load_log(tmp_path / "bms.csv").profiles,
+                             {"auxiliaries.base_power_w": base_w - less_w}, None)
+        assert res.basis == CURRENT_BASIS and res.window_s == 140.0  # 50 windows in 2 h
+        missing.append(res.missing_w[res.usable])
+    # to a watt, but where a charger switches on or off: the 1 Hz log's mean current, drawn
+    # between its samples, shifts a 300 kW step by half a second
+    assert np.median(np.abs(missing[0])) < 5.0 and np.max(np.abs(missing[0])) < 1500.0
+    assert np.median(missing[1]) == pytest.approx(3000.0, rel=0.05)
+    np.testing.assert_allclose(missing[2], missing[1])

@@ -5,8 +5,8 @@ hours); even blocks calibrate, odd blocks are held out. The model runs through t
 (a pack's temperature, a cabin's, carry on), but its SoC restarts from the measured one at
 each block, so a held-out block tests the model, not the error it carried in. Rung 0 is the
 model as given, calibrated; each further rung adds one effect and calibrates again, with the
-paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`; :data:`RESOLVED_BY_POWER`
-too on logs of battery power) and the new effects' strength parameters free together,
+paper's parameters, the bus-to-bus parameters (:data:`NUISANCE`; :data:`RESOLVED_BY_CURRENT`
+too on logs of the pack's current) and the new effects' strength parameters free together,
 starting from the rung before (and the diagnosis's estimate of the effect's strength, when it
 has one). A :class:`Freedom` changes that choice as a calibration config does: other free
 parameters in place of the paper's, narrower or wider search ranges, known values held.
@@ -20,9 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ebus_env.calibration.calibrate import CalibrationResult, calibrate, evaluate_fit
-from ebus_env.calibration.problem import Blocks, CalibrationProblem, paper_params
+from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current, paper_params
 from ebus_env.config import BusConfig, resolve_effect
-from ebus_env.diagnostics.residual import has_power
 from ebus_env.effects.base import Effect
 
 NUISANCE = {
@@ -38,13 +37,13 @@ auxiliary base load, drivetrain efficiency, pack capacity and resistance), with 
 calibration searches as factors of the configured value (within the declared bounds): wide
 enough for a fleet's spread (the pack's, which the charging events pin down, also for another
 pack than the configured one), narrow enough that they cannot stand in for a missing effect."""
-RESOLVED_BY_POWER = {
+RESOLVED_BY_CURRENT = {
     "regen_cutoff.max_share": (0.5, 1.0),
 }
-"""Bus-to-bus parameters that a log of battery current and voltage resolves and a SoC log does
-not, freed with :data:`NUISANCE` when every profile has that power: the share of the braking
-force the motor takes (each bus's brake blending). Measured power shows every braking window
-to a few per cent, and a share left at its configured value leaves a braking-shaped residual
+"""Bus-to-bus parameters that a log of the pack's current resolves and a SoC log does not,
+freed with :data:`NUISANCE` when every profile has it: the share of the braking force the
+motor takes (each bus's brake blending). The counted charge shows every braking window to a
+few per cent, and a share left at its configured value leaves a braking-shaped residual
 that the regen limit at high SoC takes for itself (it was named so on control days of the
 independent truth simulator, docs/validation.md); on a SoC log the share and such a limit
 cannot be told apart, and the share keeps its configured value."""
@@ -169,11 +168,11 @@ class Rung:
 
 
 def nuisance_ranges(model, profiles=()) -> dict[str, tuple[float, float]]:
-    """The :data:`NUISANCE` parameters the model has, and :data:`RESOLVED_BY_POWER` when
-    every one of ``profiles`` logs battery current and voltage, with their search ranges."""
+    """The :data:`NUISANCE` parameters the model has, and :data:`RESOLVED_BY_CURRENT` when
+    every one of ``profiles`` logs the pack's current, with their search ranges."""
     nuisance = dict(NUISANCE)
-    if profiles and all(map(has_power, profiles)):
-        nuisance.update(RESOLVED_BY_POWER)
+    if profiles and all(map(logs_current, profiles)):
+        nuisance.update(RESOLVED_BY_CURRENT)
     out = {}
     for name, (low, high) in nuisance.items():
         name = model.equivalent(name)  # a refinement in the slot keeps the parameter
@@ -216,8 +215,10 @@ def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, h
                    model=None, freedom: Freedom | None = None) -> Rung:
     """Calibrate ``bus`` (with ``added`` effects already in it) on the calibration blocks of
     ``profiles``: by default the paper's parameters, the bus-to-bus ones (:data:`NUISANCE`,
-    and :data:`RESOLVED_BY_POWER` on logs of battery power, in their ranges) and the added
-    effects' strength parameters are free together, as ``freedom`` changes them. The search
+    and :data:`RESOLVED_BY_CURRENT` on logs of the pack's current, in their ranges) and the
+    added effects' strength parameters are free together, as ``freedom`` changes them; on such
+    a log the charge it counts is fitted beside the SoC
+    (:class:`~ebus_env.calibration.problem.CalibrationProblem`). The search
     starts from ``start`` (values by name) and from the bus's configured values, each with the
     last added effect's strength scanned (:func:`strength_scan`). ``model`` is the bus's model
     when already built. The rung's values include the fixed ones."""
@@ -232,13 +233,15 @@ def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, h
     # a user's range for a parameter left out fails in the calibration, by its name
     ranges = {**{k: v for k, v in nuisance.items() if k in free}, **known.ranges}
     starts = [model.carry_over(start or {}), {}]  # the rung before, the configured values
+    charge = all(map(logs_current, profiles))  # a BMS log: its counted charge is fitted too
     if added and added[-1].strength_params:
-        problem = CalibrationProblem(model, profiles, free, ranges, known.fixed, blocks=cal)
+        problem = CalibrationProblem(model, profiles, free, ranges, known.fixed, blocks=cal,
+                                     charge=charge)
         starts = strength_scan(problem, model, added[-1], starts)
     result = calibrate(model, profiles, free=free, bounds=ranges, fixed=known.fixed,
                        settings=settings, validate=profiles, polish_starts=polish_starts,
                        start=starts, blocks=cal, validate_blocks=held,
-                       categorical_load=known.categorical_load)
+                       categorical_load=known.categorical_load, charge=charge)
     return Rung(label, [e.name for e in added], {**known.fixed, **result.values}, result.fit,
                 result.validation, result, model)
 

@@ -10,8 +10,11 @@ Measured SoC is quantised (0.1 % steps are 200 Wh on a 200 kWh pack), so it is n
 differentiated sample by sample: the least-squares slope of SoC over the window's samples,
 with its standard error, becomes "SoC power" with the model's capacity and open-circuit
 voltage, ``P = -Q 3600 OCV dSoC/dt``, and the model's SoC is treated the same way at the same
-instants. When the log has battery current and voltage, their product is the measured power
-and the model's terminal power is compared with it instead.
+instants. When the log has the pack's current, the charge it counts is the measure instead,
+through the same OCV: ``P = OCV I`` (charge going in at the coulombic efficiency), against the
+model's own current. The logged voltage is left out: the model's terminal voltage (its OCV
+curve and resistance) is a pack's only to a few per cent, and I (V_log - V_model) would show as
+missing power in every window that draws current.
 
 The missing power is then split by operating mode and by bins of speed, acceleration, SoC,
 ambient temperature and time of day: a least-squares fit of each window's missing power to the
@@ -29,7 +32,7 @@ from ebus_env.model.results import SimulationResult, battery_energy_j
 
 MODES = ("accelerating", "cruising", "braking/regen", "idle", "CC charging", "CV charging")
 SOC_BASIS = "SoC slope"
-POWER_BASIS = "battery current x voltage"
+CURRENT_BASIS = "battery current"
 MIN_SAMPLES = 4  # SoC samples a window needs for a slope
 MODEL_ERROR_FRAC = 0.02
 """The calibrated model's own uncertainty on a window's battery power, as a share of it: a
@@ -89,15 +92,17 @@ def measured_soc_at(profile, step: int) -> float:
     return float(np.interp(step, rows, profile.measured["soc_frac"][rows]))
 
 
-POWER_SIGNALS = ("battery_current_a", "battery_voltage_v")
-"""The measured signals whose product is the battery power (:data:`POWER_BASIS`)."""
+PACK_SIGNALS = ("battery_current_a", "battery_voltage_v")
+"""The pack's logged signals (a BMS log); its current is the measure of :data:`CURRENT_BASIS`."""
 
 
-def has_power(profile) -> bool:
-    """Whether the log has battery current and voltage everywhere."""
-    current, voltage = (profile.measured.get(name) for name in POWER_SIGNALS)
-    return current is not None and voltage is not None and bool(
-        np.all(np.isfinite(current * voltage)))
+def chemical_w(result, current_a: np.ndarray) -> np.ndarray:
+    """Power out of the pack's chemical store [W] for a current at a run's recorded rows,
+    through the model's OCV: OCV I, charge going in at the coulombic efficiency (the model's
+    own count, as its SoC power ``-Q 3600 OCV dSoC/dt``)."""
+    names = [n for n in result.model.param_names if n.endswith(".coulombic_efficiency")]
+    eta = result.params[result.model.param_index(names[0])] if names else 1.0
+    return result.trace("ocv_v") * current_a * np.where(current_a < 0.0, eta, 1.0)
 
 
 def _segments(windows: Windows, k: int, n_steps: int):
@@ -151,7 +156,8 @@ def window_power(model, profiles, params: np.ndarray, windows: Windows, basis: s
                  energy_j: np.ndarray, initial: dict | None = None) -> np.ndarray:
     """(N, n_windows) battery power of N parameter sets in each window, each window started
     from the measured SoC: SoC power ``-E dSoC/dt`` (``energy_j`` = E per window, J per unit
-    SoC) or mean terminal power, per ``basis``. One batched run of the compiled core."""
+    SoC) or the mean power out of the chemical store (OCV I, :func:`chemical_w`), per
+    ``basis``. One batched run of the compiled core."""
     params = np.atleast_2d(params)
     n = len(params)
     out = np.zeros((n, len(windows)))
@@ -183,7 +189,7 @@ def window_power(model, profiles, params: np.ndarray, windows: Windows, basis: s
                 acc = model.new_accumulators(n)
                 model.run(params, states, inputs, step0=step0, n_steps=b - a, acc=acc)
                 if w is not None:
-                    out[:, w] = battery_energy_j(model, acc)[0] / ((b - a) * profile.dt_s)
+                    out[:, w] = battery_energy_j(model, acc)[1] / ((b - a) * profile.dt_s)
     return out
 
 
@@ -206,16 +212,19 @@ def correlation_time(x: np.ndarray, max_lag: int = 120) -> float:
 def measured_power(profiles, windows: Windows, basis: str, energy_j: np.ndarray,
                    anchored) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Measured battery power per window [W], the standard error of the missing power [W], and
-    whether the window has enough samples. SoC: the slope's standard error. Current x voltage:
-    the scatter of measured minus model power about its mean, with its correlation time."""
+    whether the window has enough samples. SoC: the slope's standard error. Current: OCV I of
+    the logged current (:func:`chemical_w`), and the scatter of measured minus model power
+    about its mean, with its correlation time."""
     power = np.zeros(len(windows))
     noise = np.full(len(windows), np.inf)
     ok = np.zeros(len(windows), bool)
     diffs = []
-    if basis == POWER_BASIS:
+    if basis == CURRENT_BASIS:
+        per_row = []
         for p, r in zip(profiles, anchored, strict=True):
-            iv = p.measured["battery_current_a"] * p.measured["battery_voltage_v"]
-            diffs.append(iv[::r.record_every] - r.trace("battery_power_w"))
+            meas = chemical_w(r, p.measured["battery_current_a"][::r.record_every])
+            per_row.append(meas)
+            diffs.append(meas - chemical_w(r, r.trace("battery_current_a")))
         tau = correlation_time(np.concatenate(diffs))
     for w in range(len(windows)):
         p = profiles[windows.profile_index[w]]
@@ -228,8 +237,8 @@ def measured_power(profiles, windows: Windows, basis: str, energy_j: np.ndarray,
             slope, se = _slopes(rows * p.dt_s, p.measured["soc_frac"][rows])
             power[w], noise[w] = -energy_j[w] * slope[0], energy_j[w] * se[0]
         else:
-            iv = p.measured["battery_current_a"][a:b] * p.measured["battery_voltage_v"][a:b]
-            power[w] = float(np.mean(iv))
+            power[w] = float(np.mean(per_row[windows.profile_index[w]][
+                windows.rows(w, anchored[0].record_every)]))
             d = diffs[windows.profile_index[w]][windows.rows(w, anchored[0].record_every)]
             noise[w] = float(np.std(d) * np.sqrt(tau / max(len(d), 1)))
         ok[w] = True
