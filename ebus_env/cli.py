@@ -414,8 +414,8 @@ def calibrate(
             logs, BusChoice(bus, with_, without, overlay),
             LogHandling(columns, gaps, fill, not no_unit_check, start_time), params=params, fix=fix,
             range_=range_, windowed=windowed, charge=charge, validate=validate, seed=seed,
-            population=population,
-            iterations=iterations, categorical_load=categorical_load, config=config, sparse=sparse,
+            population=population, iterations=iterations, categorical_load=categorical_load,
+            config=config, sparse=sparse,
             sparse_cycle=sparse_cycle, out=out, json_path=json_path, plot=plot, history=history)
 
     _run(body)
@@ -558,7 +558,8 @@ def diagnose(
     json_path: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON")]
     = None,
     window_s: Annotated[float | None, typer.Option(
-        help="Window length [s] (default: 300 from SoC, 60 from current x voltage)")] = None,
+        help="Window length [s] (default: 300; on a log of the pack's current shorter, down "
+             "to 60, so that a short trip still has 50)")] = None,
     soc_only: Annotated[bool, typer.Option(
         "--soc-only", help="Diagnose from SoC alone where the log has the pack's current "
         "too (see docs/validation.md: run both)")] = False,

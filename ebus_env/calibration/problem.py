@@ -104,6 +104,14 @@ def logs_current(profile: Profile) -> bool:
     return current is not None and bool(np.isfinite(current).all())
 
 
+def coulombic_efficiency(model, matrix: np.ndarray) -> np.ndarray:
+    """Coulombic efficiency of parameter rows (n, n_params): the share of the charge going in
+    that the pack stores (1 where the model has none)."""
+    names = [n for n in model.param_names if n.endswith(".coulombic_efficiency")]
+    matrix = np.atleast_2d(matrix)
+    return matrix[:, model.param_index(names[0])] if names else np.ones(len(matrix))
+
+
 def capacity_ah(model, matrix: np.ndarray) -> np.ndarray:
     """Pack capacity [Ah] of parameter rows, at the model's starting state (one step)."""
     matrix = np.atleast_2d(matrix)
@@ -253,9 +261,7 @@ class CalibrationProblem:
                               "log in which the battery is used (or charged).")
         self.charge = charge
         if charge:
-            names = [n for n in model.param_names if n.endswith(".coulombic_efficiency")]
-            self.eta_index = model.param_index(names[0]) if names else None
-            all_charge = np.concatenate([d.counted(self.eta(self.base[None, :]))[0]
+            all_charge = np.concatenate([d.counted(coulombic_efficiency(model, self.base))[0]
                                          for d in self.data])
             self.charge_span = float(np.ptp(all_charge))
             if self.charge_span <= 0:
@@ -318,12 +324,6 @@ class CalibrationProblem:
         return _Data(profile, inputs, mask, rows, soc[rows], soc_start, first, initial, anchors,
                      start_soc, discharged, charged)
 
-    def eta(self, matrix: np.ndarray) -> np.ndarray:
-        """Coulombic efficiency of parameter rows (1 where the model has none)."""
-        if self.eta_index is None:
-            return np.ones(len(matrix))
-        return matrix[:, self.eta_index]
-
     # -- parameters ------------------------------------------------------------------------
     def values(self, u: np.ndarray) -> np.ndarray:
         """Free-parameter values for normalised points ``u`` (n, n_free)."""
@@ -368,7 +368,7 @@ class CalibrationProblem:
         charge_sse = np.zeros(n)
         if self.charge:
             ratio = capacity_ah(self.model, matrix) / self.capacity_ah
-            eta = self.eta(matrix)
+            eta = coulombic_efficiency(self.model, matrix)
         soc_min = np.full(n, np.inf)
         alive = np.arange(n)
         for d in self.data:
@@ -427,7 +427,7 @@ class CalibrationProblem:
         scale = 1.0 / (np.sqrt(self.n_samples) * self.span)
         if self.charge:
             ratio = capacity_ah(self.model, matrix) / self.capacity_ah
-            eta = self.eta(matrix)
+            eta = coulombic_efficiency(self.model, matrix)
         for d in self.data:
             sim = self.simulate(d, matrix)
             parts.append((sim - d.measured) * scale)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ebus_env.calibration.problem import coulombic_efficiency
 from ebus_env.model.results import SimulationResult, battery_energy_j
 
 MODES = ("accelerating", "cruising", "braking/regen", "idle", "CC charging", "CV charging")
@@ -100,8 +101,7 @@ def chemical_w(result, current_a: np.ndarray) -> np.ndarray:
     """Power out of the pack's chemical store [W] for a current at a run's recorded rows,
     through the model's OCV: OCV I, charge going in at the coulombic efficiency (the model's
     own count, as its SoC power ``-Q 3600 OCV dSoC/dt``)."""
-    names = [n for n in result.model.param_names if n.endswith(".coulombic_efficiency")]
-    eta = result.params[result.model.param_index(names[0])] if names else 1.0
+    eta = coulombic_efficiency(result.model, result.params)[0]
     return result.trace("ocv_v") * current_a * np.where(current_a < 0.0, eta, 1.0)
 
 
