@@ -237,9 +237,9 @@ def measured_power(profiles, windows: Windows, basis: str, energy_j: np.ndarray,
             slope, se = _slopes(rows * p.dt_s, p.measured["soc_frac"][rows])
             power[w], noise[w] = -energy_j[w] * slope[0], energy_j[w] * se[0]
         else:
-            power[w] = float(np.mean(per_row[windows.profile_index[w]][
-                windows.rows(w, anchored[0].record_every)]))
-            d = diffs[windows.profile_index[w]][windows.rows(w, anchored[0].record_every)]
+            k, rows = windows.profile_index[w], windows.rows(w, anchored[0].record_every)
+            power[w] = float(np.mean(per_row[k][rows]))
+            d = diffs[k][rows]
             noise[w] = float(np.std(d) * np.sqrt(tau / max(len(d), 1)))
         ok[w] = True
     return power, noise, ok
