@@ -107,6 +107,10 @@ FIT_ROWS = [
     ("final_soc_error_pct", "final-SoC error", "%-pts SoC", 3),
     ("energy_error_pct", "energy error", "%", 2),
 ]
+CHARGE_ROWS = [  # a fit of the charge a log's current counts, beside the SoC (--charge)
+    ("charge_nrmse", "NRMSE of the counted charge", "1", 4),
+    ("cost", "cost: rms of the two NRMSE", "1", 4),
+]
 
 
 def calibration_tables(result):
@@ -133,7 +137,7 @@ def calibration_tables(result):
     if result.validation:
         fit.add_column("validation", justify="right")
     fit.add_column("unit")
-    for key, label, unit, digits in FIT_ROWS:
+    for key, label, unit, digits in FIT_ROWS + (CHARGE_ROWS if "cost" in result.fit else []):
         row = [label, f"{result.fit.get(key, float('nan')):.{digits}f}"]
         if result.validation:
             row.append(f"{result.validation.get(key, float('nan')):.{digits}f}")

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from ebus_env.calibration import CalibrationProblem, ISOPTSettings, calibrate, isopt
+from ebus_env.calibration.calibrate import evaluate_fit
 from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.errors import ConfigError
@@ -319,6 +320,11 @@ def test_the_charge_counted_from_the_current_is_fitted_beside_the_soc(tmp_path, 
     assert charge[2] > 0.5 * soc[2] and charge[2] > 20 * soc[0]  # 3 kW more load
     r = both.residuals(both.points(variants))
     assert np.sqrt(np.sum(r**2, axis=1)) == pytest.approx(both.cost(both.points(variants)))
+    # a fit's statistics report the counted charge's NRMSE and the cost on the same terms
+    fits = [evaluate_fit(model, profiles, params, charge=True)[0]
+            for params in both.params(both.points(variants))]
+    assert [f["charge_nrmse"] for f in fits] == pytest.approx(charge, rel=1e-3, abs=1e-5)
+    assert [f["cost"] for f in fits] == pytest.approx(both.cost(both.points(variants)), rel=1e-3)
     frame.drop(columns=["battery_current_a"]).to_csv(tmp_path / "soc.csv", index=False)
     with pytest.raises(ConfigError, match="battery current"):
         CalibrationProblem(model, load_log(tmp_path / "soc.csv").profiles, free, charge=True)

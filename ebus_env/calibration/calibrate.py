@@ -13,7 +13,7 @@ import numpy as np
 from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
 from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
-from ebus_env.calibration.problem import Blocks, CalibrationProblem
+from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current
 from ebus_env.profile import Profile
 from ebus_env.units import shown_unit
 
@@ -273,11 +273,12 @@ def determinacy(problem: CalibrationProblem, u_best: np.ndarray, cost_best: floa
 
 
 def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
-                 blocks: Blocks | None = None) -> tuple[dict, dict]:
+                 blocks: Blocks | None = None, charge: bool = False) -> tuple[dict, dict]:
     """Fit statistics of a parameter vector on profiles (each from its measured first SoC, or
-    scored on ``blocks``), and the curves for plotting."""
+    scored on ``blocks``), and the curves for plotting; with ``charge``, also the NRMSE of the
+    charge the logged current counts and the fit's cost on the same terms (:func:`with_charge`)."""
     if blocks is not None:
-        return _evaluate_blocks(model, profiles, params, blocks)
+        return _evaluate_blocks(model, profiles, params, blocks, charge)
     sims, meas, times = [], [], []
     sim_energy = meas_energy = 0.0
     have_power = True
@@ -309,13 +310,25 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
         fit["energy_error_pct"] = 100.0 * (used_sim - used_meas) / abs(used_meas) \
             if used_meas else float("nan")
         fit["energy_error_basis"] = "SoC used (no current/voltage in the log)"
+    if charge:
+        with_charge(fit, CalibrationProblem(model, profiles, [model.param_names[0]], chunks=1,
+                                            charge=True), sims, params)
     return fit, {"t_h": np.concatenate(times), "sim": sim, "meas": mea}
 
 
-def _evaluate_blocks(model, profiles, params, blocks: Blocks) -> tuple[dict, dict]:
+def with_charge(fit: dict, problem: CalibrationProblem, sims, params: np.ndarray) -> None:
+    """Add to SoC ``fit`` statistics the NRMSE of the counted charge (``charge_nrmse``) and
+    ``cost``, sqrt((NRMSE^2 + NRMSE_Q^2) / 2): the error a calibration that fits the charge
+    minimises, and the one to compare two such fits by (:meth:`CalibrationProblem.fit_cost`)."""
+    fit["charge_nrmse"] = problem.charge_nrmse(sims, params)
+    fit["cost"] = float(np.hypot(fit["nrmse"], fit["charge_nrmse"]) / np.sqrt(2.0))
+
+
+def _evaluate_blocks(model, profiles, params, blocks: Blocks,
+                     charge: bool = False) -> tuple[dict, dict]:
     """SoC fit statistics on the scored blocks (the SoC restarting at each block)."""
     problem = CalibrationProblem(model, profiles, [model.param_names[0]], chunks=1,
-                                 blocks=blocks)
+                                 blocks=blocks, charge=charge)
     sims, meas, times = [], [], []
     offset = 0.0
     for d in problem.data:
@@ -324,6 +337,8 @@ def _evaluate_blocks(model, profiles, params, blocks: Blocks) -> tuple[dict, dic
         times.append((offset + d.rows * d.profile.dt_s) / 3600.0)
         offset += d.profile.duration_s
     fit = soc_fit(np.concatenate(sims), np.concatenate(meas))
+    if charge:
+        with_charge(fit, problem, sims, params)
     return fit, {"t_h": np.concatenate(times), "sim": np.concatenate(sims),
                  "meas": np.concatenate(meas)}
 
@@ -420,11 +435,12 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     timings["determinacy_s"] = tuning_s - sum(timings.values())
     tuning_s -= timings["determinacy_s"]  # the report's extra runs are not tuning
     params = problem.params(best_u)[0]
-    fit, curve = evaluate_fit(model, profiles, params, blocks)
+    fit, curve = evaluate_fit(model, profiles, params, blocks, charge)
     curves = {"calibration": (curve["t_h"], curve["sim"], curve["meas"])}
     validation = None
     if validate:
-        validation, vcurve = evaluate_fit(model, validate, params, validate_blocks)
+        validation, vcurve = evaluate_fit(model, validate, params, validate_blocks,
+                                          charge and all(map(logs_current, validate)))
         curves["validation"] = (vcurve["t_h"], vcurve["sim"], vcurve["meas"])
     notes = list(problem.notes)
     if interrupted:

@@ -162,6 +162,13 @@ class _Data:
         ``eta`` (n,)."""
         return -(self.discharged[None, :] - eta[:, None] * self.charged[None, :])
 
+    def charge_error(self, sim: np.ndarray, ratio: np.ndarray, eta: np.ndarray,
+                     rows=slice(None)) -> np.ndarray:
+        """(n, rows) the SoC change simulated since each row's block started minus the one
+        the current counts, both in the starting pack's SoC (Q_0): ``sim`` (n, rows) at the
+        ``rows`` selected, ``ratio`` = Q / Q_0 and ``eta`` of each parameter row."""
+        return (sim - self.start_soc[rows]) * ratio[:, None] - self.counted(eta)[:, rows]
+
     def edges(self, chunks: int) -> list[int]:
         """Rows where a run stops: chunk ends and anchors."""
         n = self.inputs.shape[1]
@@ -393,9 +400,8 @@ class CalibrationProblem:
                 err = sim - d.measured[in_chunk]
                 sse[alive] += np.sum(err * err, axis=1)
                 if self.charge:
-                    moved = (sim - d.start_soc[in_chunk]) * ratio[alive, None]
-                    counted = d.counted(eta[alive])[:, in_chunk]
-                    charge_sse[alive] += np.sum((moved - counted) ** 2, axis=1)
+                    err = d.charge_error(sim, ratio[alive], eta[alive], in_chunk)
+                    charge_sse[alive] += np.sum(err * err, axis=1)
                 soc_min[alive] = np.minimum(soc_min[alive], acc[:, self.model.accumulator_names
                                                                  .index("soc_min")])
                 bound = (self.fit_cost(sse[alive], charge_sse[alive]) + fixed_part[alive]
@@ -432,13 +438,22 @@ class CalibrationProblem:
             sim = self.simulate(d, matrix)
             parts.append((sim - d.measured) * scale)
             if self.charge:
-                moved = (sim - d.start_soc) * ratio[:, None]
-                charges.append((moved - d.counted(eta))
+                charges.append(d.charge_error(sim, ratio, eta)
                                / (np.sqrt(self.n_samples) * self.charge_span))
         self.evaluations += len(matrix)
         if self.charge:
             return np.sqrt(0.5) * np.concatenate(parts + charges, axis=1)
         return np.concatenate(parts, axis=1)
+
+    def charge_nrmse(self, sims: Sequence[np.ndarray], params: np.ndarray) -> float:
+        """NRMSE of the counted charge for one parameter vector, from its simulated SoC at
+        each profile's compared samples (``sims``, one array per profile)."""
+        matrix = params[None, :]
+        ratio = capacity_ah(self.model, matrix) / self.capacity_ah
+        eta = coulombic_efficiency(self.model, matrix)
+        err = np.concatenate([d.charge_error(np.asarray(sim, float)[None, :], ratio, eta)[0]
+                              for d, sim in zip(self.data, sims, strict=True)])
+        return float(np.sqrt(np.mean(err * err)) / self.charge_span)
 
     def simulate(self, d: _Data, matrix: np.ndarray) -> np.ndarray:
         """(n, n_samples) simulated SoC of parameter rows at a profile's compared samples."""
