@@ -148,6 +148,15 @@ def hidden_cases(names, ladder: bool) -> None:
                  f"{d.verdict}; {time.perf_counter() - t0:.1f} s")
 
 
+def pack_temperature(d) -> str:
+    """The report's note on the pack's resistance, with what the trips' logged pack
+    temperature did (a signal the model does not use: the check on the voltage's finding)."""
+    temp = window_mean(d, "batt_temp_c")
+    rise = "; ".join(f"{temp[d.windows.of(k)][0]:.1f} -> {temp[d.windows.of(k)][-1]:.1f}"
+                     for k in range(len(d.logs)))
+    return f"{d.pack_note} Logged pack temperature [degC], first to last window: {rise}."
+
+
 def bmw(reserved: bool) -> None:
     print("\nBMW i3 (model without cabin_hvac)")
     bus = load_bus("bmw_i3", without=["cabin_hvac"])
@@ -162,20 +171,22 @@ def bmw(reserved: bool) -> None:
         line(f"{' + '.join(trips)}: verdict", str(d.verdict), note)
         if d.verdict is None:
             line("", "", d.why)
+        line("", "", pack_temperature(d))
     print("\nBMW i3 (model without cabin_hvac), the logged heater power as a load "
           "(--columns bmw_i3_tum_heater)")
     for trips in (("B16", "B03"), ("B03",), ("B16",), ("B02",)) + (
             (("B17",), ("B38",)) if reserved else ()):
         d = diagnose(bus, bmw_profiles(*trips, columns="bmw_i3_tum_heater"))
         note = d.why
-        if d.verdict:
-            top = d.ranking[0]
+        if d.verdict and d.status != "voltage":
+            top = d.named
             (name, value), = top["parameters"].items()
             low, high = top["interval"][name]
             note = (f"{100 * top['explained_fraction']:.0f} %; {name} {value:.2f} ({low:.2f} to "
                     f"{high:.2f}); held-out NRMSE {d.nrmse['before']['held_out']:.4f} -> "
                     f"{d.nrmse['after']['held_out']:.4f}")
         line(f"{' + '.join(trips)}: verdict", str(d.verdict), note)
+        line("", "", pack_temperature(d))
     d = diagnose(load_bus("bmw_i3"), bmw_profiles("B02"))
     for issue in d.data_issues:
         line("B02 data problem", "", issue.get("detail", issue["issue"]))
@@ -188,6 +199,7 @@ def bmw(reserved: bool) -> None:
                 if np.std(heat[d.usable]) > 0 else float("nan")
             line(f"{trip} (without cabin_hvac): verdict", str(d.verdict),
                  f"r(missing, heater) = {r:.2f}; {d.why}")
+            line("", "", pack_temperature(d))
         print("  Twizy trips: no Renault Twizy bus config yet; not run.")
 
 
@@ -218,10 +230,11 @@ def truth_module(source: str):
 
 
 def truth_cases(source: str, smoke: bool, per_effect: int | None = None,
-                controls: int | None = None) -> list:
-    """The cases of a source: the whole bench (or its first ``per_effect`` days of each effect
-    and first ``controls`` control days), or 1 day per effect and 3 controls, each the last
-    ``SMOKE_HOURS`` of its day (so that an evening load stays in it)."""
+                controls: int | None = None, effects: tuple[str, ...] = ()) -> list:
+    """The cases of a source: the whole bench (or its first ``per_effect`` days of each effect,
+    of ``effects`` only when given, and first ``controls`` control days), or 1 day per effect
+    and 3 controls, each the last ``SMOKE_HOURS`` of its day (so that an evening load stays in
+    it)."""
     module, _ = truth_module(source)
     if not smoke:
         taken: dict = {}
@@ -229,7 +242,8 @@ def truth_cases(source: str, smoke: bool, per_effect: int | None = None,
         for c in module.cases():
             limit = controls if c.hidden is None else per_effect
             taken[c.hidden] = taken.get(c.hidden, 0) + 1
-            if limit is None or taken[c.hidden] <= limit:
+            if (limit is None or taken[c.hidden] <= limit) and (
+                    not effects or c.hidden is None or c.hidden in effects):
                 out.append(c)
         return out
     return [replace(c, start_clock_h=round(c.start_clock_h + max(c.hours - SMOKE_HOURS, 0), 3),
@@ -308,14 +322,17 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "outside_modes": truth.get("outside_modes") or [],
            "truth": truth.get("strength", {}),
            "verdict": d.verdict, "status": d.status, "clue": d.mode_clue,
+           # on a BMS log: the pack's resistance the logged voltage shows, over the model's
+           "resistance": {k: d.resistance[k] for k in ("level", "span", "significance",
+                                                       "changes")} if d.resistance else None,
            "top": d.ranking[0]["effect"] if d.ranking else None,
-           "estimate": d.ranking[0]["parameters"] if d.verdict else {},
-           "interval": d.ranking[0]["interval"] if d.verdict else {},
+           "estimate": d.named["parameters"] if d.verdict else {},
+           "interval": d.named["interval"] if d.verdict else {},
            # the energy the named effect adds over the day, against the truth's: the one
            # strength two structurally different models share (a UA or a derating SoC is
            # defined by each model's own form)
-           "energy_kwh": d.ranking[0].get("energy_kwh") if d.verdict else None,
-           "energy_interval_kwh": d.ranking[0].get("energy_interval_kwh") if d.verdict else None,
+           "energy_kwh": d.named.get("energy_kwh") if d.verdict else None,
+           "energy_interval_kwh": d.named.get("energy_interval_kwh") if d.verdict else None,
            "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
            "footprint_pct": truth.get("summary", {}).get("soc_footprint_pct"),
            "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
@@ -332,6 +349,9 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
                              first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
         row["fall"] = improvement(rungs)
+        if "charge_nrmse" in rungs[0].held_out:  # a BMS log: the counted charge's fall too
+            row["fall_charge"] = 1.0 - (rungs[-1].held_out["charge_nrmse"]
+                                        / rungs[0].held_out["charge_nrmse"])
         row["added_values"] = {k: v for k, v in rungs[-1].values.items()
                                if k.split(".")[0] == rungs[-1].effects[-1]}
     return row
@@ -361,11 +381,13 @@ def figures(rows) -> dict:
     right = [r for r in library if r["right"]]
     shared = [(r, k) for r in right for k in r["estimate"] if k in r["truth"]]
     energies = [r for r in right if r["energy_kwh"] is not None and r["truth_kwh"]]
-    falls = {}
+    falls, falls_charge = {}, {}
     for r in library + outside:
         label = (f"{r['added'].split(':')[-1]} (user's file)"
                  if r["expected"] == "outside_library" else r["expected"])
         falls.setdefault(label, []).append(r.get("fall", float("nan")))
+        falls_charge.setdefault(label, []).extend([r["fall_charge"]] if "fall_charge" in r
+                                                   else [])
     ten_h = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     ten_h_cpu = [r["cpu_s"] * 10.0 / r["hours"] for r in rows]
 
@@ -393,6 +415,7 @@ def figures(rows) -> dict:
                                       for n, side in r.get("range_ends", {}).items())
         .most_common(),
         "fall": {k: float(np.nanmedian(v)) for k, v in falls.items()},
+        "fall_charge": {k: float(np.nanmedian(v)) for k, v in falls_charge.items() if v},
         "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
                            <= BARS["strength"]], shared),
         "coverage": share([1 for r, k in shared if r["interval"][k][0] <= r["truth"][k]
@@ -401,6 +424,16 @@ def figures(rows) -> dict:
                          <= BARS["strength"]], energies),
         "energy_coverage": share([r for r in energies if r["energy_interval_kwh"][0]
                                   <= r["truth_kwh"] <= r["energy_interval_kwh"][1]], energies),
+        # the logged voltage shows the pack's resistance changing: on cold-battery days
+        # (a pack warming by its losses) and on the others
+        "resistance_cold": share([r for r in rows if r.get("resistance") and r["hidden"]
+                                  == "cold_battery" and r["resistance"]["changes"]],
+                                 [r for r in rows if r.get("resistance")
+                                  and r["hidden"] == "cold_battery"]),
+        "resistance_other": share([r for r in rows if r.get("resistance") and r["hidden"]
+                                   != "cold_battery" and r["resistance"]["changes"]],
+                                  [r for r in rows if r.get("resistance")
+                                   and r["hidden"] != "cold_battery"]),
         "time_s": (float(np.median(ten_h)) if ten_h else float("nan"), len(ten_h)),
         "cpu_s": (float(np.median(ten_h_cpu)) if ten_h else float("nan"), len(ten_h)),
     }
@@ -456,7 +489,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   sources: tuple[str, ...] = tuple(SOURCES), per_effect: int | None = None,
                   controls: int | None = None, current_voltage: bool = False,
                   rows_path: Path | None = None, oracle: bool = False,
-                  reference: bool = False) -> None:
+                  reference: bool = False, effects: tuple[str, ...] = ()) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -476,7 +509,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
             print(f"  {source}: its logs have no pack current (SoC only): skipped")
             continue
         jobs += [(source, c, str(folder), current_voltage, oracle, reference)
-                 for c in truth_cases(source, smoke, per_effect, controls)
+                 for c in truth_cases(source, smoke, per_effect, controls, effects)
                  if not (oracle and c.hidden is None)]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
         rows = []
@@ -515,8 +548,16 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
          ", ".join(f"{mode} {n}" for mode, n in f["control_modes"]) or "none")
     line("control days calibrated at an end of a range", f"{100 * f['control_ends'][0]:.0f} %",
          ", ".join(f"{p} {n}" for p, n in f["control_end_params"]) or "none")
+    if f["resistance_cold"][1] + f["resistance_other"][1]:
+        for which, days in (("cold-battery", "cold"), ("other", "other")):
+            line(f"the voltage shows the pack's resistance changing: {which} days",
+                 f"{100 * f['resistance_' + days][0]:.0f} %",
+                 f"{f['resistance_' + days][1]} days")
     for effect, fall in sorted(f["fall"].items()):
         line(f"held-out NRMSE fall, + {effect} (median)", f"{100 * fall:.0f} %", "bar >= 50 %")
+        if effect in f["fall_charge"]:
+            line("  the counted charge's held-out NRMSE fall",
+                 f"{100 * f['fall_charge'][effect]:.0f} %", "a log of the pack's current")
     line("strength within +-25 % (named right)", f"{100 * f['strength'][0]:.0f} %",
          f"{f['strength'][1]} estimates")
     line("interval covers the truth", f"{100 * f['coverage'][0]:.0f} %",
@@ -558,6 +599,9 @@ def main() -> None:
     parser.add_argument("--reference", action="store_true",
                         help="out of family: diagnose each day against a normal day of the "
                         "same bus (diagnose --reference)")
+    parser.add_argument("--effect", action="append", default=[],
+                        help="out of family: only the days hiding this effect (repeatable; "
+                        "the truth bench's names, e.g. cold_battery), and the control days")
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw"))
     if args.out_of_family:
@@ -565,7 +609,7 @@ def main() -> None:
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
-                      args.oracle, args.reference)
+                      args.oracle, args.reference, tuple(args.effect))
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

@@ -36,6 +36,7 @@ from ebus_env.diagnostics.ladder import (
     windows_in,
 )
 from ebus_env.diagnostics.reference import Reference, measure_reference, mode_shares
+from ebus_env.diagnostics.voltage import explain_change, resistance_check
 from ebus_env.errors import LogError
 from ebus_env.units import with_unit
 
@@ -69,7 +70,8 @@ class Diagnosis:
     sentence: str
     why: str
     significance: float  # of the missing power above noise, in standard deviations
-    status: str  # "named", "noise", "outside library", "tie", "parameter", "implausible"
+    status: str  # "named", "noise", "outside library", "tie", "parameter", "implausible",
+    # "voltage" (named from the resistance the logged voltage shows)
     mode_clue: str | None  # the operating mode where the power is missing
     ranking: list[dict]
     parameters: list[dict]
@@ -86,6 +88,7 @@ class Diagnosis:
     ladder: list[Rung]
     timings: dict
     reference: dict | None  # the normal day the missing power is relative to
+    resistance: dict | None  # the pack's resistance the logged voltage shows (voltage.py)
     # arrays behind the plots
     windows: residual.Windows = field(repr=False)
     missing_w: np.ndarray = field(repr=False)
@@ -104,6 +107,16 @@ class Diagnosis:
         return (self.calibration or {}).get("at_range_end", {})
 
     @property
+    def named(self) -> dict | None:
+        """The verdict's row of the ranking (its estimate, interval and energy), or None."""
+        return next((r for r in self.ranking if r["effect"] == self.verdict), None)
+
+    @property
+    def pack_note(self) -> str:
+        """What the logged voltage says about the pack's resistance, or "" (no voltage)."""
+        return self.resistance["finding"] if self.resistance else ""
+
+    @property
     def caution(self) -> str:
         """What the calibrated parameters at an end of their range mean, or ""."""
         ends = self.range_ends
@@ -120,7 +133,7 @@ class Diagnosis:
                 "status", "mode_clue",
                 "ranking", "parameters", "selected", "set_aside", "modes", "bins",
                 "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
-                "calibration", "reference", "timings")
+                "calibration", "reference", "resistance", "timings")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         return _plain(out)
@@ -220,7 +233,8 @@ def _sentence(found, by_name, model) -> str:
     top = next(a for a in found.ranking if a["effect"] == verdict)
     eff = by_name[verdict].effect
     title = eff.title[:1].upper() + eff.title[1:]
-    text = (f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
+    text = (f"{title} ({verdict}): {found.why}" if found.status == "voltage" else
+            f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
             "of the missing battery power on held-out windows")
 
     def shown(value):
@@ -453,6 +467,46 @@ class Fits:
     after_runs: list
 
 
+def _errors(cal: dict, held: dict) -> dict:
+    """A model's errors on the calibration and held-out blocks (the counted charge's too, on
+    a log of the pack's current)."""
+    out = {"calibration": cal["nrmse"], "held_out": held["nrmse"],
+           "rmse_calibration_pct": cal["rmse_pct"], "rmse_held_out_pct": held["rmse_pct"]}
+    if "charge_nrmse" in held:
+        out |= {"charge_calibration": cal["charge_nrmse"], "charge_held_out": held["charge_nrmse"]}
+    return out
+
+
+def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attributed:
+    """On a log whose voltage shows the pack's resistance changing, the effect that reproduces
+    the change (:func:`~ebus_env.diagnostics.voltage.explain_change`) becomes the verdict
+    where the missing power names none: the two signals are independent, and the voltage
+    sees a pack's temperature (a few per cent of the energy, spread like a load) far more
+    sharply than the power does. A verdict of the power's stands; the report's note on the
+    pack says what the voltage adds."""
+    best = check.best if check is not None else None
+    if best is None or found.verdict is not None:
+        return found
+    c = by_name[best.effect]
+    energy_kwh = c.signatures_w @ windows.duration_h / 1e3
+    order = np.argsort(c.strengths)
+    low, high = best.interval
+    reach = np.concatenate([np.interp(best.interval, c.strengths[order], energy_kwh[order]),
+                            energy_kwh[(c.strengths > low) & (c.strengths < high)]])
+    strength = Strength({best.parameter: best.value}, {best.parameter: best.interval},
+                        energy_kwh=float(energy_kwh[best.index]),
+                        energy_interval_kwh=(float(reach.min()), float(reach.max())))
+    why = (f"the missing power alone named no effect ({found.why}); the logged voltage shows "
+           f"the pack's resistance changing over the log, and {best.effect} reproduces "
+           f"{100 * best.explained:.0f} % of the change")
+    ranking = [{**r, "parameters": strength.value, "interval": strength.interval,
+                "energy_kwh": strength.energy_kwh,
+                "energy_interval_kwh": list(strength.energy_interval_kwh)}
+               if r["effect"] == best.effect else r for r in found.ranking]
+    return replace(found, verdict=best.effect, why=why, strength=strength,
+                   verdict_w=c.signatures_w[best.index], ranking=ranking, status="voltage")
+
+
 def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_name: dict,
                  add: Sequence, first_rung, blocks, settings, polish_starts, say,
                  freedom: Freedom | None = None) -> Fits:
@@ -461,9 +515,7 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
     dt_s = profiles[0].dt_s
     model, values, verdict = res.model, res.values, found.verdict
     before_cal, before_held = fit_on_blocks(model, values, profiles, *blocks)
-    nrmse = {"before": {"calibration": before_cal["nrmse"], "held_out": before_held["nrmse"],
-                        "rmse_calibration_pct": before_cal["rmse_pct"],
-                        "rmse_held_out_pct": before_held["rmse_pct"]},
+    nrmse = {"before": _errors(before_cal, before_held),
              "blocks": f"{sum(map(np.sum, blocks[0].scored))} calibration and "
                        f"{sum(map(np.sum, blocks[1].scored))} held-out blocks, the SoC "
                        "restarting from the measured one at each"}
@@ -495,9 +547,7 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
     after_runs = []
     if after_model is not None:
         a_cal, a_held = fit_on_blocks(after_model, after_values, profiles, *blocks)
-        nrmse["after"] = {"calibration": a_cal["nrmse"], "held_out": a_held["nrmse"],
-                          "rmse_calibration_pct": a_cal["rmse_pct"],
-                          "rmse_held_out_pct": a_held["rmse_pct"]}
+        nrmse["after"] = _errors(a_cal, a_held)
         after_params = after_model.param_vector(after_model.carry_over(after_values))
         after_runs = [after_model.simulate(p, after_params, record_every=res.every)
                       for p in profiles]
@@ -562,17 +612,22 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     known = (freedom or Freedom()).on(model).fixed
     res = residual_stage(model, profiles, first_rung.values if first_rung else dict(known),
                          window_s, loader_notes, normal)
+    check = resistance_check(profiles, res.anchored, res.windows, res.usable)
     timings["residual_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     say("signatures of the candidate effects")
     candidates, aside = candidate_stage(bus, res, profiles, add, say, held)
     by_name = {c.name: c for c in candidates}
+    if check is not None and check.changes:
+        check.explained_by = explain_change(check, profiles, res.anchored, res.windows,
+                                            res.usable, candidates)
     timings["candidates_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     nuisance = tuple(first_rung.calibration_result.free) if first_rung else ()
-    found = attribution_stage(res, candidates, nuisance, blocks, profiles)
+    found = voltage_stage(attribution_stage(res, candidates, nuisance, blocks, profiles),
+                          check, by_name, res.windows)
     verdict = found.verdict
     sentence = _sentence(found, by_name, by_name[verdict].model if verdict else model)
     timings["attribution_s"] = time.perf_counter() - t1
@@ -593,6 +648,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
         calibration={**first_rung.calibration_result.to_json(), "fixed": known}
         if first_rung else None,
         reference=normal.to_json() if normal else None,
+        resistance=check.to_json() if check else None,
         ladder=fits.ladder, timings=timings, windows=res.windows, missing_w=res.missing_w,
         noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
         after_runs=fits.after_runs, anchored=res.anchored,

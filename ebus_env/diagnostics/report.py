@@ -77,27 +77,38 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                 ["issue", "where / detail"],
                 [[i["issue"], ", ".join(f"{k} {v}" for k, v in i.items() if k != "issue")]
                  for i in d.data_issues] or [["none found", ""]]))
+    if d.resistance:
+        out.append(("The pack's resistance from the logged voltage: the log's over the "
+                    "model's, by hour of log or quarter of a shorter one (median of the "
+                    "windows, off the charger)",
+                    ["from h", "windows", "log / model", "+-"],
+                    [[_f(h["start_h"], 2), h["windows"], _f(h["ratio"], 3), _f(h["stderr"], 3)]
+                     for h in d.resistance["periods"]]))
+    charge = "charge_held_out" in d.nrmse["before"]  # a log of the pack's current
     fit_rows = []
     for key in ("before", "after"):
         if key in d.nrmse:
             n = d.nrmse[key]
             fit_rows.append([key, _f(n["calibration"], 4), _f(n["held_out"], 4),
+                             *([_f(n["charge_held_out"], 4)] if charge else []),
                              _f(n["rmse_calibration_pct"], 3), _f(n["rmse_held_out_pct"], 3),
                              ""])
     for r in d.ladder:
         fit_rows.append([f"ladder: {r.label}", _f(r.calibration["nrmse"], 4),
-                         _f(r.held_out["nrmse"], 4), _f(r.calibration["rmse_pct"], 3),
-                         _f(r.held_out["rmse_pct"], 3),
+                         _f(r.held_out["nrmse"], 4),
+                         *([_f(r.held_out.get("charge_nrmse"), 4)] if charge else []),
+                         _f(r.calibration["rmse_pct"], 3), _f(r.held_out["rmse_pct"], 3),
                          ", ".join(f"{n} ({side})" for n, side in r.range_ends.items())])
     out.append(("Error (" + d.nrmse["blocks"] + ")",
-                ["model", "NRMSE cal", "NRMSE held-out", "RMSE cal %", "RMSE held-out %",
-                 "calibrated at a range end"], fit_rows))
+                ["model", "NRMSE cal", "NRMSE held-out",
+                 *(["charge NRMSE held-out"] if charge else []), "RMSE cal %",
+                 "RMSE held-out %", "calibrated at a range end"], fit_rows))
     return out
 
 
 def text_report(d) -> str:
     """Plain-text report."""
-    lines = [d.sentence, *([d.caution] if d.caution else []), ""]
+    lines = [d.sentence, *[note for note in (d.pack_note, d.caution) if note], ""]
     for title, header, rows in tables(d):
         widths = [max(len(str(x)) for x in [h, *[r[i] for r in rows]])
                   for i, h in enumerate(header)]
@@ -150,6 +161,8 @@ def write_html(d, path: str | Path) -> None:
                   **({"calibrated at an end of the range searched": ", ".join(
                       f"{n} ({side})" for n, side in d.range_ends.items())}
                      if d.range_ends else {}),
+                  **({"the pack's resistance (logged voltage)": d.pack_note}
+                     if d.pack_note else {}),
                   "run time": f"{d.timings.get('total_s', 0):.1f} s"},
         how_to_read="missing power is the battery power the measured SoC implies minus the "
                     "model's; the ranking gives the share of it each candidate effect explains "

@@ -1,0 +1,267 @@
+"""What a BMS log's voltage says about the pack's resistance, window by window.
+
+Within a window of a few minutes a pack's open-circuit voltage moves only with the charge it
+gives, so its terminal voltage is, to first order (the internal-resistance equivalent circuit,
+Plett, *Battery Management Systems* vol. 1, 2015, ch. 2)::
+
+    V(t) = V_0 + k q(t) - R I(t),    q(t) = int_0^t I dt
+
+and the least-squares R over the window's samples is the pack's apparent resistance there:
+its ohmic part and what of its polarisation settles within a sample. The model's current and
+voltage give its own the same way, so their ratio ``R_log / R_model`` keeps only what the
+pack does that the model does not. A ratio that changes over the day says the pack's
+resistance follows something the model does not (its temperature: a cold pack warming by its
+own losses and the day's air, R growing about 3-4 % per kelvin below 25 degC, Waag et al.,
+J. Power Sources 242 (2013) 548-559); a steady ratio far from one says the calibrated pack
+resistance is off (a SoC log pins it only weakly). The diagnosis's missing power does not use
+the voltage (see :mod:`ebus_env.diagnostics.residual`); the missing effect that reproduces the
+change (:func:`explain_change`) is reported beside its verdict, and becomes the verdict where
+the missing power names none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ebus_env.diagnostics.candidates import strength_rows
+from ebus_env.diagnostics.residual import (
+    PACK_SIGNALS,
+    Windows,
+    anchored_run,
+    channel,
+    correlation_time,
+)
+
+MIN_ROWS = 30  # recorded rows a window needs for a resistance
+MIN_SPREAD_A = 10.0  # standard deviation of the current that makes R observable
+MIN_CHANGE = 0.05
+"""A resistance that changes by less over the log (relative to its median) is not reported
+as a change: the two packs' polarisation at different currents alone moves the ratio by a few
+per cent from hour to hour."""
+MIN_SIGNIFICANCE = 3.0  # standard deviations the periods' ratios must stand apart
+MIN_EXPLAINED = 0.8
+"""Share of the change an effect must reproduce to be named: in the finding, and as the
+verdict where the missing power names none (diagnose.voltage_stage)."""
+PERIOD_H = 1.0  # the ratio is summarised per hour of log, or per quarter of a shorter one
+
+
+def apparent_resistance(current_a: np.ndarray, voltage_v: np.ndarray,
+                        dt_s: float) -> tuple[float, float]:
+    """(R, its standard error) [ohm] of V = V_0 + k q - R I over one window's samples; NaN
+    when the current does not move enough to show it. The standard error counts the
+    residuals' correlation time."""
+    ok = np.isfinite(current_a) & np.isfinite(voltage_v)
+    i, v = current_a[ok], voltage_v[ok]
+    if len(i) < MIN_ROWS or np.std(i) < MIN_SPREAD_A:
+        return float("nan"), float("nan")
+    q = np.concatenate([[0.0], np.cumsum(i[:-1])]) * dt_s
+    a = np.column_stack([np.ones(len(i)), q, i])
+    coef, *_ = np.linalg.lstsq(a, v, rcond=None)
+    resid = v - a @ coef
+    dof = max(len(i) - 3, 1)
+    cov = np.linalg.pinv(a.T @ a) * float(resid @ resid) / dof
+    se = float(np.sqrt(max(cov[2, 2], 0.0) * correlation_time(resid)))
+    return float(-coef[2]), se
+
+
+def window_resistances(runs, windows: Windows, usable: np.ndarray, logged=None) -> np.ndarray:
+    """Apparent resistance [ohm] in each ``usable`` window of recorded runs (one per profile),
+    on the rows off the charger; with ``logged`` (the profiles), of the logged current and
+    voltage at the same rows instead. NaN where the current does not show it."""
+    out = np.full(len(windows), np.nan)
+    for w in np.flatnonzero(usable):
+        k = windows.profile_index[w]
+        r, every = runs[k], runs[k].record_every
+        rows = windows.rows(w, every)
+        off = channel(r, "charger_connected")[rows] < 0.5
+        if logged is None:
+            current, voltage = r.trace("battery_current_a"), r.trace("battery_voltage_v")
+        else:
+            current, voltage = (logged[k].measured[n][::every] for n in PACK_SIGNALS)
+        out[w] = apparent_resistance(current[rows][off], voltage[rows][off],
+                                     r.profile.dt_s * every)[0]
+    return out
+
+
+def period_starts_h(windows: Windows) -> np.ndarray:
+    """Start [h] of the period each window falls in: an hour of log, or a quarter of a log
+    shorter than four hours (a 25-min trip still shows a change)."""
+    total_h = float(windows.start_h[-1] + windows.duration_h[-1])
+    period = min(PERIOD_H, total_h / 4.0)
+    return np.floor(windows.start_h / period + 1e-9) * period
+
+
+def by_period(ratio: np.ndarray, windows: Windows) -> list[dict]:
+    """Median of a per-window ratio per period of log (:func:`period_starts_h`; those with 3
+    windows or more), with its standard error from the windows' own scatter (1.4826 MAD;
+    1.253 sd / sqrt(n) for the median of a normal sample)."""
+    start = period_starts_h(windows)
+    seen = np.isfinite(ratio)
+    out = []
+    for h in np.unique(start[seen]):
+        x = ratio[seen & (start == h)]
+        if len(x) < 3:
+            continue
+        sd = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+        out.append({"start_h": float(h), "windows": int(len(x)), "ratio": float(np.median(x)),
+                    "stderr": max(1.253 * sd / np.sqrt(len(x)), 1e-3)})
+    return out
+
+
+@dataclass
+class ResistanceCheck:
+    """The pack's apparent resistance, the log's over the model's, per window and by period."""
+
+    ratio: np.ndarray  # per window (NaN where the current does not show it)
+    periods: list[dict]  # start_h, windows, ratio (median), stderr: per period_starts_h
+    level: float  # median ratio over the log
+    change: float  # last period's ratio minus the first's, relative to the level
+    span: float  # largest minus smallest period's ratio, relative to the level
+    significance: float  # of the periods' ratios' spread about the level, in sd
+    explained_by: list = field(default_factory=list)  # VoltageFit, best first
+
+    @property
+    def changes(self) -> bool:
+        return bool(self.span >= MIN_CHANGE and self.significance >= MIN_SIGNIFICANCE)
+
+    @property
+    def best(self):
+        """The missing effect that reproduces the change, when one does (``MIN_EXPLAINED``)."""
+        if self.changes and self.explained_by and self.explained_by[0].explained >= MIN_EXPLAINED:
+            return self.explained_by[0]
+        return None
+
+    def finding(self) -> str:
+        """One sentence for the report."""
+        first, last = self.periods[0]["ratio"], self.periods[-1]["ratio"]
+        if self.changes:
+            best = self.best
+            return (f"The logged voltage shows the pack's resistance changing over the log "
+                    f"(from {first:.2f} to {last:.2f} times the model's, values per period "
+                    f"{100 * self.span:.0f} % apart, {self.significance:.1f} sd): it follows "
+                    "something the model does not, such as the pack's temperature" + (
+                        f"; {best.effect} reproduces {100 * best.explained:.0f} % of the "
+                        f"change ({best.parameter} = {best.value:.3g})." if best else
+                        "; no library effect reproduces it."))
+        return (f"The logged voltage shows the pack's resistance steady at {self.level:.2f} "
+                f"times the model's (values per period {100 * self.span:.0f} % apart, "
+                f"{self.significance:.1f} sd)" + (
+                    ": the model's pack resistance is off by as much; a known value "
+                    "(--set) would free the fit from it." if abs(self.level - 1.0) > 0.2
+                    else "."))
+
+    def to_json(self) -> dict:
+        return {"level": self.level, "change": self.change, "span": self.span,
+                "significance": self.significance, "changes": self.changes,
+                "periods": self.periods, "explained_by": [f.to_json() for f in self.explained_by],
+                "finding": self.finding()}
+
+
+def resistance_check(profiles, anchored, windows: Windows,
+                     usable: np.ndarray | None = None) -> ResistanceCheck | None:
+    """The log's apparent resistance over the model's in each (``usable``) window, on its
+    rows off the charger and the same rows of the window-anchored runs, summarised by hour of
+    log (a quarter of a shorter log); None when the log has no current and voltage, or fewer
+    than two periods show them."""
+    if not all(n in p.measured for p in profiles for n in PACK_SIGNALS):
+        return None
+    usable = np.ones(len(windows), bool) if usable is None else usable
+    model = window_resistances(anchored, windows, usable)
+    ratio = window_resistances(anchored, windows, usable, logged=profiles) / np.where(
+        model > 0, model, np.nan)
+    periods = by_period(ratio, windows)
+    if len(periods) < 2:
+        return None
+    value = np.array([h["ratio"] for h in periods])
+    se = np.array([h["stderr"] for h in periods])
+    level = float(np.nanmedian(ratio))
+    mean = float(np.sum(value / se**2) / np.sum(1.0 / se**2))
+    chi2, dof = float(np.sum(((value - mean) / se) ** 2)), len(periods) - 1
+    return ResistanceCheck(ratio, periods, level, float((value[-1] - value[0]) / level),
+                           float((value.max() - value.min()) / level),
+                           float((chi2 - dof) / np.sqrt(2.0 * dof)))
+
+
+@dataclass
+class VoltageFit:
+    """How one missing effect reproduces the log's change of resistance (explain_change)."""
+
+    effect: str
+    explained: float  # share of the log's variation between periods it takes away, at its best
+    parameter: str  # its strength parameter
+    index: int  # of the best among the candidate's strengths (its signatures)
+    value: float  # the best strength
+    interval: tuple[float, float]  # the strengths that fit as well within a 90 % band
+
+    def to_json(self) -> dict:
+        return {"effect": self.effect, "explained": self.explained,
+                "parameters": {self.parameter: self.value},
+                "interval": {self.parameter: list(self.interval)}}
+
+
+def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
+                   usable: np.ndarray, candidates) -> list[VoltageFit]:
+    """Which missing effects reproduce the log's change of resistance over the day, best
+    first: each candidate effect that moves the model's resistance at all (an anchored run at
+    either end of its strengths) is run at each of its strengths, and its resistance over the
+    model's per period, r_c, is compared with the log's, r: the share of the log's variation
+    (chi-square of ln r in standard errors about a constant) that ln r - ln r_c no
+    longer has, at the best strength. A constant factor is free: the level is the calibrated
+    pack resistance's, the change is the effect's. The interval holds the strengths whose
+    chi-square lies within 2.71 (90 %, one parameter) of the best, scaled by the best's
+    chi-square per degree of freedom where that exceeds one (a form that differs from the
+    pack's; Press et al., Numerical Recipes, 3rd ed., 2007, sec. 15.6)."""
+    every = anchored[0].record_every
+    base = window_resistances(anchored, windows, usable)
+    periods = [h["start_h"] for h in check.periods]
+    start = period_starts_h(windows)
+    logged = np.log([h["ratio"] for h in check.periods])
+    weight = (np.array([h["ratio"] / h["stderr"] for h in check.periods])) ** 2
+
+    def chi2(x):  # weighted squares about the weighted mean
+        return float(np.sum(weight * (x - np.sum(weight * x) / np.sum(weight)) ** 2))
+
+    def predicted(c, row):  # ln of the candidate's resistance over the model's, per period
+        runs = [anchored_run(c.model, p, row, windows, k, every) for k, p in enumerate(profiles)]
+        ratio = window_resistances(runs, windows, usable) / np.where(base > 0, base, np.nan)
+        ratio[~np.isin(start, periods)] = np.nan
+        mine = {h["start_h"]: h["ratio"] for h in by_period(ratio, windows)}
+        return np.log([mine.get(h, np.nan) for h in periods])
+
+    total = chi2(logged)
+    out = []
+    for c in candidates:
+        if c.kind == "parameter" or c.strengths is None or total <= 0:
+            continue
+        rows, values = strength_rows(c.model, c.params, c.strength_param, c.strengths)
+        ends = [predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))]
+        if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends) < MIN_CHANGE / 4:
+            continue  # it does not move the pack's resistance
+        left = np.array([chi2(logged - predicted(c, row)) for row in rows])
+        left[~np.isfinite(left)] = np.inf
+        j = int(np.argmin(left))
+        scale = max(1.0, left[j] / max(len(periods) - 2, 1))
+        out.append(VoltageFit(c.name, 1.0 - left[j] / total, c.strength_param, j,
+                              float(values[j]), band(values, left, left[j] + 2.71 * scale)))
+    return sorted(out, key=lambda f: -f.explained)
+
+
+def band(x: np.ndarray, cost: np.ndarray, level: float) -> tuple[float, float]:
+    """Where ``cost`` over the grid ``x`` (any order) crosses ``level`` on either side of its
+    minimum, by linear interpolation between grid points; a grid end where it never does."""
+    order = np.argsort(x)
+    x, cost = x[order], cost[order]
+    j = int(np.argmin(cost))
+
+    def crossing(step):
+        k = j
+        while 0 <= k + step < len(x) and cost[k + step] <= level:
+            k += step
+        if not 0 <= k + step < len(x):
+            return float(x[k])
+        a, b = cost[k], cost[k + step]
+        return float(x[k] + (x[k + step] - x[k]) * (level - a) / (b - a))
+
+    return crossing(-1), crossing(1)
