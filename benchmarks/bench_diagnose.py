@@ -386,13 +386,18 @@ def figures(rows) -> dict:
         label = (f"{r['added'].split(':')[-1]} (user's file)"
                  if r["expected"] == "outside_library" else r["expected"])
         falls.setdefault(label, []).append(r.get("fall", float("nan")))
-        falls_charge.setdefault(label, []).extend([r["fall_charge"]] if "fall_charge" in r
-                                                   else [])
+        if "fall_charge" in r:
+            falls_charge.setdefault(label, []).append(r["fall_charge"])
     ten_h = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     ten_h_cpu = [r["cpu_s"] * 10.0 / r["hours"] for r in rows]
 
     def share(part, whole):
         return (len(part) / len(whole), len(whole)) if whole else (float("nan"), 0)
+
+    checked = [r for r in rows if r.get("resistance")]  # logs with the pack's voltage
+
+    def changing(days):
+        return share([r for r in days if r["resistance"]["changes"]], days)
 
     return {
         "top1": share(right, library),
@@ -415,7 +420,7 @@ def figures(rows) -> dict:
                                       for n, side in r.get("range_ends", {}).items())
         .most_common(),
         "fall": {k: float(np.nanmedian(v)) for k, v in falls.items()},
-        "fall_charge": {k: float(np.nanmedian(v)) for k, v in falls_charge.items() if v},
+        "fall_charge": {k: float(np.nanmedian(v)) for k, v in falls_charge.items()},
         "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
                            <= BARS["strength"]], shared),
         "coverage": share([1 for r, k in shared if r["interval"][k][0] <= r["truth"][k]
@@ -426,14 +431,8 @@ def figures(rows) -> dict:
                                   <= r["truth_kwh"] <= r["energy_interval_kwh"][1]], energies),
         # the logged voltage shows the pack's resistance changing: on cold-battery days
         # (a pack warming by its losses) and on the others
-        "resistance_cold": share([r for r in rows if r.get("resistance") and r["hidden"]
-                                  == "cold_battery" and r["resistance"]["changes"]],
-                                 [r for r in rows if r.get("resistance")
-                                  and r["hidden"] == "cold_battery"]),
-        "resistance_other": share([r for r in rows if r.get("resistance") and r["hidden"]
-                                   != "cold_battery" and r["resistance"]["changes"]],
-                                  [r for r in rows if r.get("resistance")
-                                   and r["hidden"] != "cold_battery"]),
+        "resistance_cold": changing([r for r in checked if r["hidden"] == "cold_battery"]),
+        "resistance_other": changing([r for r in checked if r["hidden"] != "cold_battery"]),
         "time_s": (float(np.median(ten_h)) if ten_h else float("nan"), len(ten_h)),
         "cpu_s": (float(np.median(ten_h_cpu)) if ten_h else float("nan"), len(ten_h)),
     }
