@@ -95,7 +95,7 @@ def test_the_voltage_names_the_cold_pack_whose_resistance_falls_as_it_warms(name
     assert "ambient_battery reproduces" in d.pack_note
     # the missing power (the charge the current counts) alone names nothing: the voltage does
     assert d.verdict == "ambient_battery" and d.status == "voltage", d.why
-    named = next(r for r in d.ranking if r["effect"] == "ambient_battery")
+    named = d.named
     low, high = named["interval"]["ambient_battery.initial_offset_k"]
     assert low <= 0.0 <= high and named["energy_kwh"] > 0.0
 

@@ -248,15 +248,22 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
         interval = tuple(np.quantile(spread, [0.05, 0.95]).tolist())
         interval = (min(interval[0], best), max(interval[1], best))
     lo, hi = candidate.model.bounds[candidate.model.param_index(name)]
-    # the effect's energy over the log at each strength: its extra power times the windows'
-    # hours (every window, usable or not), between grid points linear
-    energy_kwh = signatures @ windows.duration_h / 1e3
+    return Strength({name: best}, {name: interval}, _beyond_bound(fine, cost[0], lo, hi),
+                    *effect_energy(grid, signatures, windows, best, interval))
+
+
+def effect_energy(strengths, signatures_w: np.ndarray, windows, best: float,
+                  interval: tuple[float, float]) -> tuple[float, tuple[float, float]]:
+    """The energy [kWh] an effect adds over the log at strength ``best``, and its range over
+    ``interval``: each signature's extra power (one per strength) times the windows' hours
+    (every window, usable or not), linear between grid points."""
+    grid, first = np.unique(np.asarray(strengths, float), return_index=True)
+    energy_kwh = signatures_w[first] @ windows.duration_h / 1e3
     inside = energy_kwh[(grid > interval[0]) & (grid < interval[1])]
     ends = np.interp(interval, grid, energy_kwh)
-    return Strength({name: best}, {name: interval}, _beyond_bound(fine, cost[0], lo, hi),
-                    float(np.interp(best, grid, energy_kwh)),
-                    (float(min(ends.min(), inside.min(initial=np.inf))),
-                     float(max(ends.max(), inside.max(initial=-np.inf)))))
+    return float(np.interp(best, grid, energy_kwh)), (
+        float(min(ends.min(), inside.min(initial=np.inf))),
+        float(max(ends.max(), inside.max(initial=-np.inf))))
 
 
 def _beyond_bound(x: np.ndarray, cost: np.ndarray, low: float, high: float) -> bool:

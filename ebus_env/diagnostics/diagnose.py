@@ -21,6 +21,7 @@ from ebus_env.diagnostics import attribution, clues, quality, residual
 from ebus_env.diagnostics.candidates import (
     Strength,
     effect_candidates,
+    effect_energy,
     estimate_strength,
     parameter_candidates,
 )
@@ -488,14 +489,9 @@ def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attribute
     if best is None or found.verdict is not None:
         return found
     c = by_name[best.effect]
-    energy_kwh = c.signatures_w @ windows.duration_h / 1e3
-    order = np.argsort(c.strengths)
-    low, high = best.interval
-    reach = np.concatenate([np.interp(best.interval, c.strengths[order], energy_kwh[order]),
-                            energy_kwh[(c.strengths > low) & (c.strengths < high)]])
-    strength = Strength({best.parameter: best.value}, {best.parameter: best.interval},
-                        energy_kwh=float(energy_kwh[best.index]),
-                        energy_interval_kwh=(float(reach.min()), float(reach.max())))
+    strength = Strength({best.parameter: best.value}, {best.parameter: best.interval}, False,
+                        *effect_energy(c.strengths, c.signatures_w, windows, best.value,
+                                       best.interval))
     why = (f"the missing power alone named no effect ({found.why}); the logged voltage shows "
            f"the pack's resistance changing over the log, and {best.effect} reproduces "
            f"{100 * best.explained:.0f} % of the change")

@@ -120,6 +120,7 @@ class ResistanceCheck:
     change: float  # last period's ratio minus the first's, relative to the level
     span: float  # largest minus smallest period's ratio, relative to the level
     significance: float  # of the periods' ratios' spread about the level, in sd
+    model_ohm: np.ndarray  # the model's apparent resistance per window (the ratio's base)
     explained_by: list = field(default_factory=list)  # VoltageFit, best first
 
     @property
@@ -181,7 +182,7 @@ def resistance_check(profiles, anchored, windows: Windows,
     chi2, dof = float(np.sum(((value - mean) / se) ** 2)), len(periods) - 1
     return ResistanceCheck(ratio, periods, level, float((value[-1] - value[0]) / level),
                            float((value.max() - value.min()) / level),
-                           float((chi2 - dof) / np.sqrt(2.0 * dof)))
+                           float((chi2 - dof) / np.sqrt(2.0 * dof)), model)
 
 
 @dataclass
@@ -214,7 +215,7 @@ def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
     chi-square per degree of freedom where that exceeds one (a form that differs from the
     pack's; Press et al., Numerical Recipes, 3rd ed., 2007, sec. 15.6)."""
     every = anchored[0].record_every
-    base = window_resistances(anchored, windows, usable)
+    base = check.model_ohm
     periods = [h["start_h"] for h in check.periods]
     start = period_starts_h(windows)
     logged = np.log([h["ratio"] for h in check.periods])
@@ -236,10 +237,11 @@ def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
         if c.kind == "parameter" or c.strengths is None or total <= 0:
             continue
         rows, values = strength_rows(c.model, c.params, c.strength_param, c.strengths)
-        ends = [predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))]
-        if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends) < MIN_CHANGE / 4:
+        ends = {int(i): predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))}
+        if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends.values()) < MIN_CHANGE / 4:
             continue  # it does not move the pack's resistance
-        left = np.array([chi2(logged - predicted(c, row)) for row in rows])
+        left = np.array([chi2(logged - (ends[i] if i in ends else predicted(c, rows[i])))
+                         for i in range(len(rows))])
         left[~np.isfinite(left)] = np.inf
         j = int(np.argmin(left))
         scale = max(1.0, left[j] / max(len(periods) - 2, 1))
