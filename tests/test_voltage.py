@@ -107,3 +107,33 @@ def test_the_band_is_where_the_cost_crosses_its_level_between_grid_points():
     cost = (x - 2.0) ** 2  # 4, 4, 0, 16 at x = 4, 0, 2, 6
     assert band(x, cost, 2.0) == pytest.approx((1.0, 3.0))
     assert band(x, cost, 100.0) == (0.0, 6.0)  # never crosses: the grid's ends
+
+
+def test_a_strength_the_two_halves_of_the_log_disagree_on_widens_its_interval(monkeypatch):
+    """A pack whose resistance changes like the effect's at 3 in the morning and like it at 6
+    in the afternoon (a form the effect does not have): the interval takes in both halves'
+    strengths, which the whole log's band alone leaves out; where the effect's form is the
+    pack's, it stays narrow, and a half in which the effect changes nearly nothing is not
+    taken in."""
+    from ebus_env.diagnostics import voltage
+
+    values = np.linspace(0.0, 10.0, 41)
+    weight = np.full(8, 1.0 / 0.005**2)  # ratios to 0.5 %
+    shape = np.array([0.5, 0.4, 0.3, 0.2, 0.15, 0.1, 0.05, 0.0])  # a cold pack warming
+    cold = values[:, None] * shape[None, :]  # ln ratio per period at each strength
+    j, explained, (low, high) = voltage.strength_fit(values, cold, 4.0 * shape + 0.1, weight)
+    assert values[j] == pytest.approx(4.0) and explained > 0.999 and high - low < 0.5
+    assert voltage.strength_fit(values, cold, np.full(8, 0.2), weight) is None  # no change
+    stepped = np.where(np.arange(8) < 4, 3.0, 6.0) * shape
+    low, high = voltage.strength_fit(values, cold, stepped, weight)[2]
+    assert low <= 3.0 and high >= 6.0, (low, high)
+    # warm by the afternoon: there the effect's change is tiny, and the log's follows it at 9
+    # (noise would do as much); that half's band does not close, so it is not taken in
+    late = np.arange(8) >= 4
+    warm = np.where(late, 0.15 - 0.0005 * (np.arange(8) - 4), shape)
+    logged = np.where(late, 0.6 + 9.0 * (warm - 0.15), 4.0 * warm)
+    low, high = voltage.strength_fit(values, values[:, None] * warm[None, :], logged, weight)[2]
+    assert low <= 4.0 <= high and high - low < 1.0, (low, high)
+    monkeypatch.setattr(voltage, "MIN_HALF", 8)  # the whole log's band alone
+    low, high = voltage.strength_fit(values, cold, stepped, weight)[2]
+    assert not (low <= 3.0 and high >= 6.0), (low, high)

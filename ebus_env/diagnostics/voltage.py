@@ -44,6 +44,7 @@ MIN_SIGNIFICANCE = 3.0  # standard deviations the periods' ratios must stand apa
 MIN_EXPLAINED = 0.8
 """Share of the change an effect must reproduce to be named: in the finding, and as the
 verdict where the missing power names none (diagnose.voltage_stage)."""
+MIN_HALF = 3  # periods each half of the log needs for its own strength fit
 PERIOD_H = 1.0  # the ratio is summarised per hour of log, or per quarter of a shorter one
 
 
@@ -206,23 +207,14 @@ def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
                    usable: np.ndarray, candidates) -> list[VoltageFit]:
     """Which missing effects reproduce the log's change of resistance over the day, best
     first: each candidate effect that moves the model's resistance at all (an anchored run at
-    either end of its strengths) is run at each of its strengths, and its resistance over the
-    model's per period, r_c, is compared with the log's, r: the share of the log's variation
-    (chi-square of ln r in standard errors about a constant) that ln r - ln r_c no
-    longer has, at the best strength. A constant factor is free: the level is the calibrated
-    pack resistance's, the change is the effect's. The interval holds the strengths whose
-    chi-square lies within 2.71 (90 %, one parameter) of the best, scaled by the best's
-    chi-square per degree of freedom where that exceeds one (a form that differs from the
-    pack's; Press et al., Numerical Recipes, 3rd ed., 2007, sec. 15.6)."""
+    either end of its strengths) is run at each of its strengths, its resistance over the
+    model's per period compared with the log's (:func:`strength_fit`)."""
     every = anchored[0].record_every
     base = check.model_ohm
     periods = [h["start_h"] for h in check.periods]
     start = period_starts_h(windows)
     logged = np.log([h["ratio"] for h in check.periods])
     weight = (np.array([h["ratio"] / h["stderr"] for h in check.periods])) ** 2
-
-    def chi2(x):  # weighted squares about the weighted mean
-        return float(np.sum(weight * (x - np.sum(weight * x) / np.sum(weight)) ** 2))
 
     def predicted(c, row):  # ln of the candidate's resistance over the model's, per period
         runs = [anchored_run(c.model, p, row, windows, k, every) for k, p in enumerate(profiles)]
@@ -231,23 +223,65 @@ def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
         mine = {h["start_h"]: h["ratio"] for h in by_period(ratio, windows)}
         return np.log([mine.get(h, np.nan) for h in periods])
 
-    total = chi2(logged)
     out = []
     for c in candidates:
-        if c.kind == "parameter" or c.strengths is None or total <= 0:
+        if c.kind == "parameter" or c.strengths is None:
             continue
         rows, values = strength_rows(c.model, c.params, c.strength_param, c.strengths)
         ends = {int(i): predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))}
         if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends.values()) < MIN_CHANGE / 4:
             continue  # it does not move the pack's resistance
-        left = np.array([chi2(logged - (ends[i] if i in ends else predicted(c, rows[i])))
+        runs = np.array([ends[i] if i in ends else predicted(c, rows[i])
                          for i in range(len(rows))])
+        fit = strength_fit(values, runs, logged, weight)
+        if fit is not None:
+            j, explained, interval = fit
+            out.append(VoltageFit(c.name, explained, c.strength_param, j, float(values[j]),
+                                  interval))
+    return sorted(out, key=lambda f: -f.explained)
+
+
+def strength_fit(values: np.ndarray, predicted: np.ndarray, logged: np.ndarray,
+                 weight: np.ndarray) -> tuple[int, float, tuple[float, float]] | None:
+    """The strength at which an effect's ln resistance ratio per period, ``predicted[i]`` at
+    ``values[i]``, best reproduces the log's, ``logged`` (weights 1/se^2): (its index, the
+    share of the log's variation it takes away, its 90 % interval); None where the log's
+    ratio does not vary.
+
+    The log's variation is the chi-square of ln r about a constant: a constant factor is
+    free (the level is the calibrated pack resistance's, the change is the effect's). The
+    interval holds the strengths whose chi-square lies within 2.71 (90 %, one parameter) of
+    the best, scaled by the best's chi-square per degree of freedom where that exceeds one
+    (a form that differs from the pack's; Press et al., Numerical Recipes, 3rd ed., 2007,
+    sec. 15.6), widened to take in the best strength of the same fit on the log's first and
+    on its second half of periods, each where that half's own band closes on both sides (a
+    pack that has warmed up by the afternoon says nothing of its starting offset): where an
+    effect's form differs from the pack's (a pack warming with its own time constant, not
+    the air's), the two halves ask for different strengths, and that sets the doubt."""
+    n = len(logged)
+
+    def chi2(x, keep):  # weighted squares about the weighted mean
+        x, w = x[keep], weight[keep]
+        return float(np.sum(w * (x - np.sum(w * x) / np.sum(w)) ** 2))
+
+    def fit(keep):
+        left = np.array([chi2(logged - x, keep) for x in predicted])
         left[~np.isfinite(left)] = np.inf
         j = int(np.argmin(left))
-        scale = max(1.0, left[j] / max(len(periods) - 2, 1))
-        out.append(VoltageFit(c.name, 1.0 - left[j] / total, c.strength_param, j,
-                              float(values[j]), band(values, left, left[j] + 2.71 * scale)))
-    return sorted(out, key=lambda f: -f.explained)
+        scale = max(1.0, left[j] / max(int(keep.sum()) - 2, 1))
+        return j, left[j], band(values, left, left[j] + 2.71 * scale)
+
+    everywhere = np.ones(n, bool)
+    total = chi2(logged, everywhere)
+    if not total > 0:
+        return None
+    j, left, interval = fit(everywhere)
+    first = np.arange(n) < n // 2
+    for half in ((first, ~first) if n >= 2 * MIN_HALF else ()):
+        k, _, (low, high) = fit(half)
+        if values.min() < low and high < values.max():  # the half pins the strength
+            interval = (min(interval[0], float(values[k])), max(interval[1], float(values[k])))
+    return j, 1.0 - left / total, interval
 
 
 def band(x: np.ndarray, cost: np.ndarray, level: float) -> tuple[float, float]:
