@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from ebus_env.config import load_bus
 from ebus_env.cycles import service_day
 from ebus_env.errors import LogError
 from ebus_env.grade import grade_from_altitude
@@ -286,3 +287,25 @@ def test_sampling_rate_does_not_change_the_answer(tmp_path, bus12, model12, cycl
     for label in ("1 Hz", "0.5 Hz", "20 Hz"):
         assert abs(end[label]["soc_end_pct"] - end["10 Hz"]["soc_end_pct"]) < 0.5
         assert end[label]["distance_km"] == pytest.approx(end["10 Hz"]["distance_km"], rel=0.01)
+
+
+def test_twizy_trip_with_preset_and_the_twizys_energy_per_km():
+    """A Twizy trip read with its preset (SoC in 0.02 % steps, GPS altitude to grade, ambient
+    mapped); the car's config on an hour of urban driving (SORT 2): a 549 kg quadricycle
+    uses tens of Wh per km at the pack (Renault rates its 6.1 kWh for about 100 km), not the
+    hundreds of a car or the thousand of a bus. The trips are reserved for validation: the
+    energy is checked on a standard cycle, not on them."""
+    log = load_log(ROOT / "data/measured/rsk_twizy/T3_05_31_2021_1hz.csv.gz", DT,
+                   columns="rsk_twizy")
+    p = log.profile
+    soc = p.measured["soc_frac"]
+    assert soc[0] == pytest.approx(0.546, abs=0.001) and np.nanmin(soc) < 0.25
+    logged = soc[p.sample_rows("soc_frac")]  # the 1 Hz samples, not the 10 Hz interpolation
+    assert np.min(np.diff(np.unique(np.round(logged * 1e4)))) == pytest.approx(2.0)  # 0.02 %
+    assert np.nanmean(p.channels["ambient_degc"]) == pytest.approx(20.5, abs=2.0)
+    assert np.abs(p.channels["grade_frac"]).max() <= 0.15
+    bus = load_bus("twizy")
+    run = bus.build(DT).simulate(service_day("sort2", 1.0, DT, bus.service))
+    km = run.trace("distance_m")[-1] / 1e3
+    used_wh = (run.trace("soc_frac")[0] - run.trace("soc_frac")[-1]) * 108 * 15 * 3.75
+    assert 40.0 < used_wh / km < 120.0, used_wh / km
