@@ -24,7 +24,9 @@
   truth, and the error ladder's fall in held-out NRMSE.
 * Real data: BMW i3 trips B16 + B03 without the cabin-heating effect (verdict, correlation of
   the missing power with the logged heater power), B02's capacity problem, and the reserved
-  trips B17, B38, A08 (run and reported only).
+  trips B17, B38, A08 (run and reported only); the Renault Twizy trips (all reserved: run
+  and reported only), from SoC alone, as configured and without road grade, which the error
+  ladder adds back.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from ebus_env.diagnostics.ladder import improvement  # noqa: E402
 from ebus_env.io.measured import load_log  # noqa: E402
 
 BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
+TWIZY = ROOT / "data" / "measured" / "rsk_twizy"
 USER_FILE = Path(__file__).with_name("user_effects.py")
 USER_EFFECTS = {"battery_chiller": f"{USER_FILE}:pack_chiller",
                 "air_compressor": f"{USER_FILE}:air_compressor"}
@@ -200,7 +203,30 @@ def bmw(reserved: bool) -> None:
             line(f"{trip} (without cabin_hvac): verdict", str(d.verdict),
                  f"r(missing, heater) = {r:.2f}; {d.why}")
             line("", "", pack_temperature(d))
-        print("  Twizy trips: no Renault Twizy bus config yet; not run.")
+
+
+def twizy() -> None:
+    """The Renault Twizy trips (all reserved: run and reported only), SoC alone: the
+    calibrated model as configured, and without road grade, which the error ladder then adds
+    back (the trips climb and descend up to 160 m)."""
+    print("\nRenault Twizy trips (reserved: run and report), --calibrate, from SoC alone")
+    falls = []
+    for path in sorted(TWIZY.glob("*_1hz.csv.gz")):
+        trip = path.name.removesuffix("_1hz.csv.gz")
+        profiles = load_log(path, columns="rsk_twizy").profiles
+        before = diagnose(load_bus("twizy"), profiles).nrmse["before"]["held_out"]
+        d = diagnose(load_bus("twizy"), profiles, calibrate=True)
+        line(f"{trip}: verdict, as configured", str(d.verdict),
+             f"held-out NRMSE {before:.4f} uncalibrated, {d.nrmse['before']['held_out']:.4f} "
+             f"calibrated; {len(d.windows)} windows; {d.why[:60]}")
+        d = diagnose(load_bus("twizy", without=["road_grade"]), profiles, add=["road_grade"])
+        r = d.ladder
+        falls.append(improvement(r))
+        line(f"{trip}: verdict without road_grade", str(d.verdict),
+             f"+ road_grade: held-out NRMSE {r[0].held_out['nrmse']:.4f} -> "
+             f"{r[-1].held_out['nrmse']:.4f} (fall {100 * falls[-1]:.0f} %); {d.why[:60]}")
+    line("held-out NRMSE fall after adding road_grade (median)",
+         f"{100 * statistics.median(falls):.0f} %", f"{len(falls)} trips")
 
 
 ORACLE = "replayed_load"
@@ -574,7 +600,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--smoke", action="store_true", help="one case, no ladder (CI)")
-    parser.add_argument("--part", choices=("speed", "hidden", "bmw"), action="append",
+    parser.add_argument("--part", choices=("speed", "hidden", "bmw", "twizy"), action="append",
                         help="run only these parts (repeatable; default all)")
     parser.add_argument("--out-of-family", action="store_true",
                         help="the truth bench: days from other simulators")
@@ -602,7 +628,7 @@ def main() -> None:
                         help="out of family: only the days hiding this effect (repeatable; "
                         "the truth bench's names, e.g. cold_battery), and the control days")
     args = parser.parse_args()
-    parts = set(args.part or ("speed", "hidden", "bmw"))
+    parts = set(args.part or ("speed", "hidden", "bmw", "twizy"))
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
@@ -621,6 +647,8 @@ def main() -> None:
             hidden_cases([c.name for c in hidden.CASES], ladder=True)
         if "bmw" in parts:
             bmw(reserved=True)
+        if "twizy" in parts:
+            twizy()
 
 
 if __name__ == "__main__":
