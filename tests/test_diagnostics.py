@@ -240,6 +240,21 @@ def test_control_day_supports_no_missing_effect():
     assert d.nrmse["before"]["held_out"] < 0.01 and "after" not in d.nrmse
 
 
+def test_a_log_too_short_to_attribute_says_so_and_names_nothing(tmp_path):
+    """The first 45 min of the cabin-heating day (a heater named on the whole day) hold
+    8 five-minute windows: too few to deal into folds and bootstrap blocks, so no verdict,
+    and the report says why and what to do; the whole day has windows to spare."""
+    frame = pd.read_csv(hidden.OUT_DIR / "cabin_heating.csv.gz")
+    frame.iloc[:2700].to_csv(tmp_path / "short.csv", index=False)  # 45 min at 1 Hz
+    bus = hidden.baseline_bus(hidden.case("cabin_heating"))
+    d = diagnose(bus, load_log(tmp_path / "short.csv").profiles)
+    assert d.status == "too few windows" and d.verdict is None, d.why
+    assert int(d.usable.sum()) < attribution.MIN_WINDOWS
+    assert d.sentence.startswith("Only") and "--window-s" in d.sentence
+    assert d.ranking  # the candidates are still scored and shown
+    assert diagnose(bus, hidden_log("cabin_heating")).status != "too few windows"
+
+
 # -- a user's own effect ---------------------------------------------------------------------
 @pytest.mark.slow
 def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():

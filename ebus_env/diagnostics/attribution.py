@@ -13,6 +13,8 @@ share of the missing power it explains on held-out windows::
 Forward stepwise selection then adds candidates while each adds at least ``MIN_GAIN`` to the
 held-out share. The verdict is the best missing effect only when
 
+* there are ``MIN_WINDOWS`` usable windows at least: fewer cannot be dealt into folds and
+  bootstrap blocks that test anything (a 17-min log holds three 5-min windows);
 * the missing power stands out of the noise: chi-square of the windows' missing power in
   noise units lies ``MIN_SIGNIFICANCE`` standard deviations above its value for noise alone;
 * the effect explains at least ``MIN_EXPLAINED`` of it, and ``MIN_GAIN`` more than
@@ -43,6 +45,7 @@ MIN_GAIN = 0.05
 TIE = 0.01  # held-out shares this close are equal
 BOOT_BLOCK = 6  # windows per bootstrap block (30 min of 5-min windows)
 BOOT_DRAWS = 400
+MIN_WINDOWS = 2 * BOOT_BLOCK  # usable windows an attribution needs
 CONFIDENCE = 0.95  # a winner beats the runner-up in this share of the bootstrap draws
 NUISANCE_STEPS = 1.0
 """How far a calibrated (nuisance) parameter may move back when an effect is added, in its
@@ -218,7 +221,7 @@ class Decision(NamedTuple):
     verdict: str | None
     why: str  # why there is no verdict
     significance: float  # of the missing power above noise, in standard deviations
-    status: str  # "named", "noise", "outside library", "tie" or "parameter"
+    status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter"
 
 
 def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np.ndarray,
@@ -275,6 +278,12 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
         pool.remove(best)
     effects = [a for a in ranking if a.kind != "parameter"]
     params = [a for a in ranking if a.kind == "parameter"]
+    if len(y) < MIN_WINDOWS:
+        return Decision(ranking, selected, None, (
+            f"only {len(y)} usable windows: too few to tell effects apart on held-out windows "
+            f"(at least {MIN_WINDOWS} are needed); diagnose several logs of the bus together, "
+            "or give a shorter --window-s where the log's SoC resolution allows it"),
+            significance, "too few windows")
     if significance < MIN_SIGNIFICANCE:
         return Decision(ranking, selected, None, (
             f"the missing power is at the noise level ({standing(significance)} it): the model "

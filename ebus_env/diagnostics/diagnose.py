@@ -52,8 +52,6 @@ MIN_CURRENT_WINDOW_S = 60.0
 MIN_WINDOWS = 50
 WORST = 5
 CLUE_SIGMA = 3.0
-MIN_CHECK_WINDOWS = 2 * attribution.BOOT_BLOCK
-"""Held-out windows needed to check the strength estimate on them (two bootstrap blocks)."""
 START_UP_S = 120.0
 """Windows that start this soon after the start of a log are left out of the attribution:
 the log does not say when the driver switched the heater or other systems on."""
@@ -227,7 +225,7 @@ def _worst(anchored, windows, missing, noise, usable) -> list[dict]:
 
 def _sentence(found, by_name, model) -> str:
     verdict = found.verdict
-    if found.status == "outside library":
+    if found.status in ("outside library", "too few windows"):
         return f"{found.why[:1].upper()}{found.why[1:]}."  # "no library effect explains ..."
     if verdict is None:
         return f"No missing effect is supported by the data: {found.why}."
@@ -413,7 +411,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
 
         strength = strength_on(fit)
         held = res.usable & ~in_cal
-        if held.sum() >= MIN_CHECK_WINDOWS:
+        if held.sum() >= attribution.MIN_WINDOWS:  # enough to check the estimate on
             strength = strength.taking_in(strength_on(held))
         if strength.at_bound:
             (name, value), = strength.value.items()
