@@ -231,9 +231,9 @@ def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
         ends = {int(i): predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))}
         if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends.values()) < MIN_CHANGE / 4:
             continue  # it does not move the pack's resistance
-        runs = np.array([ends[i] if i in ends else predicted(c, rows[i])
-                         for i in range(len(rows))])
-        fit = strength_fit(values, runs, logged, weight)
+        ln_ratios = np.array([ends[i] if i in ends else predicted(c, rows[i])
+                              for i in range(len(rows))])
+        fit = strength_fit(values, ln_ratios, logged, weight)
         if fit is not None:
             j, explained, interval = fit
             out.append(VoltageFit(c.name, explained, c.strength_param, j, float(values[j]),
