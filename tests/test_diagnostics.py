@@ -572,6 +572,11 @@ def test_a_calibrated_value_the_data_press_against_its_range_end_is_reported():
     name, side = next(iter(d.range_ends.items()))
     assert name in d.caution and f"{side}: the data want" in text_report(d)
     assert d.to_json()["calibration"]["at_range_end"] == d.range_ends
+    # the model as configured, on the same blocks: what the uncalibrated diagnosis reports,
+    # and worse on the held-out blocks than the calibrated one (a pack 40 % too small)
+    assert d.nrmse["configured"] == diagnose(small, profiles).nrmse["before"]
+    assert d.nrmse["configured"]["held_out"] > 2 * d.nrmse["before"]["held_out"]
+    assert "as configured (not calibrated)" in text_report(d)
     right = diagnose(hidden.baseline_bus(case), profiles, **quick)
     assert right.range_ends == {} and right.caution == ""
     assert right.calibration["params"]["static_rcd.rcd_frac"] < 0.01  # at its admissible end

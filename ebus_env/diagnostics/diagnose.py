@@ -505,7 +505,8 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
                  add: Sequence, first_rung, blocks, settings, polish_starts, say,
                  freedom: Freedom | None = None) -> Fits:
     """Held-out NRMSE of the model before, and after the verdict's effect (or the error
-    ladder of ``add``), each re-calibrated."""
+    ladder of ``add``), each re-calibrated; with a calibration, of the model as configured
+    too (``configured``: whether calibrating on the calibration blocks helped on the others)."""
     dt_s = profiles[0].dt_s
     model, values, verdict = res.model, res.values, found.verdict
     before_cal, before_held = fit_on_blocks(model, values, profiles, *blocks)
@@ -513,6 +514,9 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
              "blocks": f"{sum(map(np.sum, blocks[0].scored))} calibration and "
                        f"{sum(map(np.sum, blocks[1].scored))} held-out blocks, the SoC "
                        "restarting from the measured one at each"}
+    if first_rung is not None:
+        configured = (freedom or Freedom()).on(model).fixed  # what a user set is kept
+        nrmse["configured"] = _errors(*fit_on_blocks(model, configured, profiles, *blocks))
     runs = [model.simulate(p, res.params, record_every=res.every) for p in profiles]
     after_model, after_values, ladder = None, {}, []
     if add:

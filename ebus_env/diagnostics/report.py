@@ -86,10 +86,11 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                      for h in d.resistance["periods"]]))
     charge = "charge_held_out" in d.nrmse["before"]  # a log of the pack's current
     fit_rows = []
-    for key in ("before", "after"):
+    for key in ("configured", "before", "after"):
         if key in d.nrmse:
             n = d.nrmse[key]
-            fit_rows.append([key, _f(n["calibration"], 4), _f(n["held_out"], 4),
+            label = "as configured (not calibrated)" if key == "configured" else key
+            fit_rows.append([label, _f(n["calibration"], 4), _f(n["held_out"], 4),
                              *([_f(n["charge_held_out"], 4)] if charge else []),
                              _f(n["rmse_calibration_pct"], 3), _f(n["rmse_held_out_pct"], 3),
                              ""])
