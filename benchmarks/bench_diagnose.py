@@ -214,10 +214,10 @@ def twizy() -> None:
     for path in sorted(TWIZY.glob("*_1hz.csv.gz")):
         trip = path.name.removesuffix("_1hz.csv.gz")
         profiles = load_log(path, columns="rsk_twizy").profiles
-        before = diagnose(load_bus("twizy"), profiles).nrmse["before"]["held_out"]
         d = diagnose(load_bus("twizy"), profiles, calibrate=True)
         line(f"{trip}: verdict, as configured", str(d.verdict),
-             f"held-out NRMSE {before:.4f} uncalibrated, {d.nrmse['before']['held_out']:.4f} "
+             f"held-out NRMSE {d.nrmse['configured']['held_out']:.4f} uncalibrated, "
+             f"{d.nrmse['before']['held_out']:.4f} "
              f"calibrated; {len(d.windows)} windows; {d.why[:60]}")
         d = diagnose(load_bus("twizy", without=["road_grade"]), profiles, add=["road_grade"])
         r = d.ladder
@@ -376,8 +376,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
         row["fall"] = improvement(rungs)
         if "charge_nrmse" in rungs[0].held_out:  # a BMS log: the counted charge's fall too
-            row["fall_charge"] = 1.0 - (rungs[-1].held_out["charge_nrmse"]
-                                        / rungs[0].held_out["charge_nrmse"])
+            row["fall_charge"] = improvement(rungs, "charge_nrmse")
         row["added_values"] = {k: v for k, v in rungs[-1].values.items()
                                if k.split(".")[0] == rungs[-1].effects[-1]}
     return row

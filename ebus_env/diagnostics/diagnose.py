@@ -69,8 +69,8 @@ class Diagnosis:
     sentence: str
     why: str
     significance: float  # of the missing power above noise, in standard deviations
-    status: str  # "named", "noise", "outside library", "tie", "parameter", "implausible",
-    # "voltage" (named from the resistance the logged voltage shows)
+    status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter",
+    # "implausible", "voltage" (named from the resistance the logged voltage shows)
     mode_clue: str | None  # the operating mode where the power is missing
     ranking: list[dict]
     parameters: list[dict]

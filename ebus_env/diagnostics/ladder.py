@@ -279,8 +279,8 @@ def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None
     return rungs
 
 
-def improvement(rungs: list[Rung]) -> float:
+def improvement(rungs: list[Rung], key: str = "nrmse") -> float:
     """Relative fall of held-out SoC NRMSE from the first rung to the last (on a log of the
-    pack's current, the counted charge's, ``charge_nrmse``, is reported beside it)."""
-    before, after = rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"]
+    pack's current, the counted charge's, ``key="charge_nrmse"``, is reported beside it)."""
+    before, after = rungs[0].held_out[key], rungs[-1].held_out[key]
     return float(1.0 - after / before) if before > 0 else float("nan")

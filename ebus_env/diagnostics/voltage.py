@@ -115,7 +115,6 @@ def by_period(ratio: np.ndarray, windows: Windows) -> list[dict]:
 class ResistanceCheck:
     """The pack's apparent resistance, the log's over the model's, per window and by period."""
 
-    ratio: np.ndarray  # per window (NaN where the current does not show it)
     periods: list[dict]  # start_h, windows, ratio (median), stderr: per period_starts_h
     level: float  # median ratio over the log
     change: float  # last period's ratio minus the first's, relative to the level
@@ -181,7 +180,7 @@ def resistance_check(profiles, anchored, windows: Windows,
     level = float(np.nanmedian(ratio))
     mean = float(np.sum(value / se**2) / np.sum(1.0 / se**2))
     chi2, dof = float(np.sum(((value - mean) / se) ** 2)), len(periods) - 1
-    return ResistanceCheck(ratio, periods, level, float((value[-1] - value[0]) / level),
+    return ResistanceCheck(periods, level, float((value[-1] - value[0]) / level),
                            float((value.max() - value.min()) / level),
                            float((chi2 - dof) / np.sqrt(2.0 * dof)), model)
 
