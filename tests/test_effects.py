@@ -356,19 +356,23 @@ def test_tables_off_any_small_grid_are_approximated_not_exploded():
 
 
 @pytest.mark.parametrize("fn", both("regen_soc_limit"))
-def test_regen_soc_limit_derates_at_high_soc(fn):
+def test_regen_soc_limit_derates_the_charge_limit_at_high_soc(fn):
     def share(speed_mps, soc_frac, demand_n=-10_000.0, max_decel_mps2=5.0):
         return fn(speed_mps=speed_mps, soc_frac=soc_frac, wheel_force_demand_n=demand_n,
                   road_force_n=1_000.0, effective_mass_kg=14_000.0, max_brake_decel_mps2=5.0,
-                  cutoff_speed_mps=1.5, max_share=1.0, max_decel_mps2=max_decel_mps2,
-                  derate_soc_pct=90.0)
+                  regen_force_max_n=20_000.0, cutoff_speed_mps=1.5, max_share=1.0,
+                  max_decel_mps2=max_decel_mps2, derate_soc_pct=90.0)
 
     assert share(1.0, 0.5) == 0.0  # below the cutoff
     assert share(5.0, 0.5) == 1.0
-    assert share(5.0, 0.95) == pytest.approx(0.5)
+    # at 95 % the limit is half the drive's 20 kN: 10 kN, so 10 kN of braking stays regenerative
+    assert share(5.0, 0.95) == pytest.approx(1.0)
+    assert share(5.0, 0.975) == pytest.approx(0.5)  # 5 kN of 10
+    assert share(5.0, 0.95, demand_n=-28_000.0) == pytest.approx(10.0 / 28.0)
     assert share(5.0, 1.0) == 0.0
-    # derated to half of 28 kN, 14 kN, then the motor's 0.8 m/s^2 of a 14 t bus: 11.2 kN
-    assert share(5.0, 0.95, demand_n=-28_000.0, max_decel_mps2=0.8) == pytest.approx(0.4)
+    # the motor's 0.8 m/s^2 of a 14 t bus, 11.2 kN, binds below the derated limit (12 kN) at 94 %
+    assert share(5.0, 0.94, demand_n=-28_000.0, max_decel_mps2=0.8) == pytest.approx(0.4)
+    assert share(5.0, 0.98, demand_n=-28_000.0, max_decel_mps2=0.8) == pytest.approx(4.0 / 28.0)
 
 
 @pytest.mark.parametrize("fn", both("passenger_schedule"))

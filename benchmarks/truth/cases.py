@@ -168,7 +168,8 @@ def _strength(hidden: str | None, ph: dict, trace: pd.DataFrame) -> dict:
         return {"cabin_hvac.ua_w_per_k": ph["ua_w_per_k"]}
     if hidden == "regen_soc_limit":
         # both start derating at this SoC and reach zero at 100 %; the truth derates the
-        # charge current, the library the braking share
+        # charge current from the motor's regen current, the library the regenerative force
+        # from the drive's (the pack's voltage and the drive's torque limit make them differ)
         return {"regen_soc_limit.derate_soc_pct": 100.0 * ph["derate_soc_frac"]}
     if hidden == "cold_battery":
         # the pack starts this far above the ambient and relaxes with tau = C / hA (the

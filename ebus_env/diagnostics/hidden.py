@@ -60,8 +60,8 @@ CASES = (
          ambient_degc=(-8.0, -1.0)),
     Case("regen_high_soc", "regen_soc_limit", (), {"regen_soc_limit.derate_soc_pct": 85.0},
          "charged to about 98 % every two hours, the SoC swings between 98 and 75 %; above "
-         "85 % the BMS derates regenerative braking (linearly to zero at 100 %); the baseline "
-         "regenerates fully", hours=10.0, soc_start=0.98,
+         "85 % the BMS derates its regenerative charge limit (linearly to zero at 100 %); the "
+         "baseline regenerates fully", hours=10.0, soc_start=0.98,
          service={"layover_every_min": 120, "layover_min": 15}),
     Case("evening_auxiliaries", "aux_schedule", (), {"aux_schedule.scale": 5.0},
          "lights from 17:00 (2.5 kW, the evening_lights schedule at scale 5) on a 14:00-24:00 "

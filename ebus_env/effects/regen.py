@@ -61,16 +61,27 @@ def regen_cutoff(speed_mps, wheel_force_demand_n, road_force_n, effective_mass_k
           "Largest deceleration the motor brakes at alone: harder braking goes to the friction "
           "brakes (series blending)", "Sangtarash et al., SAE 2008-01-1561"),
     Param("derate_soc_pct", 90.0, "%", (50.0, 99.9),
-          "SoC above which the BMS derates regeneration, reaching zero at 100 %"),
+          "SoC above which the BMS derates the regenerative charge limit, reaching zero at 100 %"),
 ])
 def regen_soc_limit(speed_mps, soc_frac, wheel_force_demand_n, road_force_n, effective_mass_kg,
-                    max_brake_decel_mps2, cutoff_speed_mps, max_share, max_decel_mps2,
-                    derate_soc_pct):
-    """Regenerative braking with the cutoff speed and blending of ``regen_cutoff``, derated by
-    the BMS at high SoC: share = max_share * min(1, (100 - SoC) / (100 - SoC_derate)) (SoC
-    in %)."""
+                    max_brake_decel_mps2, regen_force_max_n, cutoff_speed_mps, max_share,
+                    max_decel_mps2, derate_soc_pct):
+    """Regenerative braking with the cutoff speed and blending of ``regen_cutoff``, under a
+    charge limit the BMS derates near a full pack. The limit falls linearly from the drive's
+    own regenerative force F_gen (its torque and P_gen, ``regen_force_max_n``) at SoC_d to zero
+    at 100 %::
+
+        |F_motor| <= F_gen * min(1, (100 - SoC) / (100 - SoC_d))      (SoC in %)
+
+    so light braking keeps its full share until the limit falls below it, and hard braking
+    loses regeneration first. The share is the blended one, cut to that limit."""
     if speed_mps <= cutoff_speed_mps:
         return 0.0
-    headroom = (100.0 - 100.0 * soc_frac) / (100.0 - derate_soc_pct)
-    return _blended(max_share * min(1.0, max(headroom, 0.0)), wheel_force_demand_n,
-                    road_force_n, effective_mass_kg, max_brake_decel_mps2, max_decel_mps2)
+    share = _blended(max_share, wheel_force_demand_n, road_force_n, effective_mass_kg,
+                     max_brake_decel_mps2, max_decel_mps2)
+    headroom = min(1.0, max((100.0 - 100.0 * soc_frac) / (100.0 - derate_soc_pct), 0.0))
+    braking_n = -max(wheel_force_demand_n, road_force_n - effective_mass_kg * max_brake_decel_mps2)
+    limit_n = headroom * regen_force_max_n
+    if braking_n * share > limit_n:
+        return limit_n / braking_n
+    return share
