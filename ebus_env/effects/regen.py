@@ -16,12 +16,12 @@ from ebus_env.effects.base import Param, effect, helper
 
 @helper
 def _blended(share, wheel_force_demand_n, road_force_n, effective_mass_kg,
-             max_brake_decel_mps2, max_decel_mps2):
-    """``share`` of the braking force, at most the force ``m a_regen`` (series blending). The
-    braking force is the driver's demand within the brakes' largest deceleration, as the
-    force allocation takes it, so that ``a_regen`` at that deceleration limits nothing."""
+             max_brake_decel_mps2, limit_n):
+    """``share`` of the braking force, at most the force ``limit_n`` (series blending: the
+    motor brakes alone up to ``m a_regen``). The braking force is the driver's demand within
+    the brakes' largest deceleration, as the force allocation takes it, so that ``a_regen`` at
+    that deceleration limits nothing."""
     braking_n = -max(wheel_force_demand_n, road_force_n - effective_mass_kg * max_brake_decel_mps2)
-    limit_n = effective_mass_kg * max_decel_mps2
     if braking_n * share > limit_n:
         return limit_n / braking_n
     return share
@@ -48,7 +48,7 @@ def regen_cutoff(speed_mps, wheel_force_demand_n, road_force_n, effective_mass_k
     if speed_mps <= cutoff_speed_mps:
         return 0.0
     return _blended(max_share, wheel_force_demand_n, road_force_n, effective_mass_kg,
-                    max_brake_decel_mps2, max_decel_mps2)
+                    max_brake_decel_mps2, effective_mass_kg * max_decel_mps2)
 
 
 @effect("regen_soc_limit", slot="regen", label="regen derated at high SoC", drivers=("speed_mps", "soc_frac"),
@@ -74,14 +74,10 @@ def regen_soc_limit(speed_mps, soc_frac, wheel_force_demand_n, road_force_n, eff
         |F_motor| <= F_gen * min(1, (100 - SoC) / (100 - SoC_d))      (SoC in %)
 
     so light braking keeps its full share until the limit falls below it, and hard braking
-    loses regeneration first. The share is the blended one, cut to that limit."""
+    loses regeneration first."""
     if speed_mps <= cutoff_speed_mps:
         return 0.0
-    share = _blended(max_share, wheel_force_demand_n, road_force_n, effective_mass_kg,
-                     max_brake_decel_mps2, max_decel_mps2)
     headroom = min(1.0, max((100.0 - 100.0 * soc_frac) / (100.0 - derate_soc_pct), 0.0))
-    braking_n = -max(wheel_force_demand_n, road_force_n - effective_mass_kg * max_brake_decel_mps2)
-    limit_n = headroom * regen_force_max_n
-    if braking_n * share > limit_n:
-        return limit_n / braking_n
-    return share
+    return _blended(max_share, wheel_force_demand_n, road_force_n, effective_mass_kg,
+                    max_brake_decel_mps2,
+                    min(effective_mass_kg * max_decel_mps2, headroom * regen_force_max_n))
