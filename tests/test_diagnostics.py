@@ -185,10 +185,11 @@ def test_the_shipped_hidden_days_are_what_the_generator_makes(name):
     assert list(made.columns) == list(shipped.columns) and len(made) == len(shipped)
     # a value the kernel puts on a rounding tie (a bus stopping through 0.05 km/h) may round
     # either way on another CPU: one quantisation step, on a few rows, and nothing else
-    for column, step in (("speed_kmh", 0.1), ("soc_pct", 0.1)):
+    steps = {"speed_kmh": 0.1, "soc_pct": 0.1}
+    for column, step in steps.items():
         off = (made[column] - shipped[column]).abs()
         assert off.max() <= step + 1e-9 and (off > 1e-9).mean() < 0.002, column
-    rest = [c for c in made.columns if c not in ("speed_kmh", "soc_pct")]
+    rest = [c for c in made.columns if c not in steps]
     pd.testing.assert_frame_equal(made[rest], shipped[rest])
     manifest = json.loads((hidden.OUT_DIR / "cases.json").read_text())
     assert set(manifest) == {c.name for c in hidden.CASES}
