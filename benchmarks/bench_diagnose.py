@@ -340,6 +340,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
         reference = reference_stage(bus, normal_day, None, None, None, None)
     d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
+    plain = d.to_json()
     if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")
         freedom = reference.freedom(bus.build(profiles[0].dt_s))
@@ -348,6 +349,9 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "outside_modes": truth.get("outside_modes") or [],
            "truth": truth.get("strength", {}),
            "verdict": d.verdict, "status": d.status, "clue": d.mode_clue,
+           # the missing power by operating mode the clue is read from, and what it moves
+           # with: for analyses of the clue's rule
+           "modes": plain["modes"], "clues": plain["clues"][:5],
            # on a BMS log: the pack's resistance the logged voltage shows, over the model's
            "resistance": {k: d.resistance[k] for k in ("level", "span", "significance",
                                                        "changes")} if d.resistance else None,
@@ -513,7 +517,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   sources: tuple[str, ...] = tuple(SOURCES), per_effect: int | None = None,
                   controls: int | None = None, current_voltage: bool = False,
                   rows_path: Path | None = None, oracle: bool = False,
-                  reference: bool = False, effects: tuple[str, ...] = ()) -> None:
+                  reference: bool = False, effects: tuple[str, ...] = (),
+                  resume: bool = False) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -535,8 +540,13 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         jobs += [(source, c, str(folder), current_voltage, oracle, reference)
                  for c in truth_cases(source, smoke, per_effect, controls, effects)
                  if not (oracle and c.hidden is None)]
+    rows = []
+    if resume and rows_path is not None and rows_path.exists():  # the days already done
+        rows = json.loads(rows_path.read_text())
+        done = {(r["source"], r["case"]) for r in rows}
+        jobs = [j for j in jobs if (j[0], j[1].case_id) not in done]
+        print(f"  {len(done)} days from {rows_path}, {len(jobs)} to run")
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        rows = []
         for row in pool.map(diagnose_truth_day, jobs):
             rows.append(row)
             if rows_path is not None:  # every day so far, for analyses without a re-run
@@ -553,6 +563,12 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                  + (f" (+ user's {row['added_values']})" if row["expected"] == "outside_library"
                     and "added_values" in row else "") + "; "
                  f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
+    report(rows, oracle, workers)
+
+
+def report(rows, oracle: bool = False, workers: int = 2) -> None:
+    """The confusion matrix, the footprint table and the figures against their bars (the
+    oracle's table on oracle days) of the days' rows."""
     confusion(rows)
     footprint_table(rows)
     if oracle:
@@ -626,14 +642,28 @@ def main() -> None:
     parser.add_argument("--effect", action="append", default=[],
                         help="out of family: only the days hiding this effect (repeatable; "
                         "the truth bench's names, e.g. cold_battery), and the control days")
+    parser.add_argument("--resume", action="store_true",
+                        help="out of family: keep the days already in the --rows file and run "
+                        "only the others (a bench stopped part-way)")
+    parser.add_argument("--from-rows", type=Path, action="append", default=[],
+                        help="out of family: report the days of these --rows files, together "
+                        "(repeatable), without running them; the first file's row of a day "
+                        "is kept")
     args = parser.parse_args()
     parts = set(args.part or ("speed", "hidden", "bmw", "twizy"))
+    if args.from_rows:
+        rows = {}
+        for path in args.from_rows:
+            for row in json.loads(path.read_text()):
+                rows.setdefault((row["source"], row["case"]), row)
+        report(list(rows.values()), args.oracle, args.workers)
+        return
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
-                      args.oracle, args.reference, tuple(args.effect))
+                      args.oracle, args.reference, tuple(args.effect), args.resume)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

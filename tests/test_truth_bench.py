@@ -200,3 +200,39 @@ def test_the_footprint_table_counts_the_days_named_right_in_each_bin(capsys):
     assert "truthsim: 2 to 5 percentage points" in out and "road_grade 1/1" in out
     assert "fastsim: >= 5 percentage points" in out and "cabin_hvac 0/1" in out
     assert "0.5 to 1 " not in out  # no days there
+
+
+def test_a_stopped_bench_resumes_and_rows_files_report_together(tmp_path, monkeypatch, capsys):
+    """``--resume`` runs only the days its ``--rows`` file lacks (here: none, so nothing is
+    diagnosed), and ``--from-rows`` reports several rows files as one bench, the first file's
+    row of a day kept."""
+    import json
+
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+
+    def row(case, verdict, right):
+        return {"source": "truthsim", "case": case, "hidden": "road_grade",
+                "expected": "road_grade", "outside_modes": [], "truth": {},
+                "verdict": verdict, "status": "named" if verdict else "outside library",
+                "clue": None, "estimate": {}, "energy_kwh": None, "truth_kwh": None,
+                "footprint_pct": 3.0, "time_s": 30.0, "cpu_s": 30.0, "hours": 10.0,
+                "right": right, "added": "road_grade", "fall": 0.5, "range_ends": {}}
+
+    first, second = tmp_path / "first.json", tmp_path / "second.json"
+    first.write_text(json.dumps([row("road_grade_00", "road_grade", True)]))
+    second.write_text(json.dumps([row("road_grade_00", None, False),
+                                  row("road_grade_01", None, False)]))
+    monkeypatch.setattr(bench, "diagnose_truth_day", lambda job: pytest.fail("ran a done day"))
+    bench.out_of_family(tmp_path, smoke=False, sources=("truthsim",), per_effect=1, controls=0,
+                        rows_path=first, effects=("road_grade",), resume=True)
+    out = capsys.readouterr().out
+    assert "1 days from" in out and "0 to run" in out
+    assert "top-1 right over the library's effects" in out and "100 %" in out
+    monkeypatch.setattr(sys, "argv", ["bench_diagnose.py", "--from-rows", str(first),
+                                      "--from-rows", str(second)])
+    bench.main()
+    f = bench.figures([row("road_grade_00", "road_grade", True),
+                       row("road_grade_01", None, False)])
+    assert f["top1"] == (0.5, 2)
+    assert "50 %  bar >= 90 %; 2 days" in capsys.readouterr().out
