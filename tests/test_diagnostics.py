@@ -404,6 +404,23 @@ def test_a_strength_interval_takes_in_the_estimate_on_other_windows():
     assert calibration.taking_in(Strength({}, {})).interval == calibration.interval
 
 
+def test_the_logs_resolution_is_the_standard_error_of_the_energy_its_windows_measure():
+    """sqrt(sum (sigma_w t_w)^2) over the usable windows: 90 windows of 5 min measured to
+    300 W each resolve 0.3 kW x 1/12 h x sqrt(90) = 0.24 kWh; unusable windows do not count.
+    A verdict whose effect adds less than this is withdrawn as implausible."""
+    from types import SimpleNamespace
+
+    from ebus_env.diagnostics.diagnose import Residual
+
+    usable = np.ones(100, bool)
+    usable[::10] = False
+    measurement_w = np.where(usable, 300.0, 1e6)
+    res = Residual(None, {}, np.zeros(0), 1, "soc", 300.0,
+                   SimpleNamespace(duration_h=np.full(100, 300.0 / 3600.0)), [], np.zeros(100),
+                   np.zeros(100), np.zeros(100), measurement_w, measurement_w, usable, [], 0)
+    assert res.resolution_kwh() == pytest.approx(0.3 / 12 * np.sqrt(90), rel=1e-12)
+
+
 def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report_says_how_far(
         tmp_path):
     """A heated day whose cabin has no fans, no fresh air and a heat pump of COP 6: the

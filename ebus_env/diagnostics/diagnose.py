@@ -275,6 +275,14 @@ class Residual:
     excluded: int
     normal_w: tuple[np.ndarray, np.ndarray] | None = None  # what a normal day misses, +-
 
+    def resolution_kwh(self) -> float:
+        """The standard error of the energy the log measures over its usable windows,
+        sqrt(sum (sigma_w t_w)^2) with each window's measurement error sigma_w: an effect
+        that adds less than this is below what the log can show (about one SoC step of the
+        pack on a 0.1 %-quantised SoC log)."""
+        e_kwh = self.measurement_w[self.usable] * self.windows.duration_h[self.usable] / 1e3
+        return float(np.sqrt(np.sum(e_kwh**2)))
+
     def beyond_normal(self) -> tuple[np.ndarray, np.ndarray]:
         """The missing power beyond what the reference day misses, and its uncertainty (the
         missing power itself without a reference)."""
@@ -423,6 +431,14 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"its {side} bound, {value:.4g} (range {low:.4g} to {high:.4g}), where it adds "
                    f"{strength.energy_kwh:.3g} kWh over the log (its other parameters, or its "
                    "form, differ from this bus's)")
+            status, verdict = "implausible", None
+        elif abs(strength.energy_kwh) < res.resolution_kwh():
+            # the fit's strength adds less energy than the log can show at all: the shape
+            # matched noise, not an effect (a regen limit above the SoC the day reaches)
+            why = (f"the shape of {verdict} fits, the strength is implausible: at the strength "
+                   f"that fits it adds {strength.energy_kwh:.2g} kWh over the log, less than "
+                   f"the log resolves ({res.resolution_kwh():.2g} kWh, the standard error of "
+                   "the energy it measures)")
             status, verdict = "implausible", None
         else:
             # like with like: the missing power the fit predicts, the calibrated parameters
