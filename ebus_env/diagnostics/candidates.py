@@ -19,10 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics.attribution import NUISANCE_STEPS
+from ebus_env.diagnostics.boxlsq import refit_sse
 from ebus_env.diagnostics.residual import window_power
 from ebus_env.effects.base import Effect, registered_effects
 from ebus_env.errors import EbusError
@@ -209,26 +209,13 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
     if name is None:
         return Strength({}, {})
     sw = np.sqrt(weight[fit])
-    n_other = 0 if nuisance is None else nuisance.shape[1]
     others = np.zeros((int(fit.sum()), 0)) if nuisance is None else nuisance[fit] * sw[:, None]
     counts = np.ones((1, int(fit.sum())))
 
     def sse(signatures, counts=counts):
-        """(draws, signatures) weighted SSE, the nuisance columns re-fitted in each draw (by
-        bounded-variable least squares: exact on these small problems, where the bounds bind
-        in nearly every draw, and a third of the time of scipy's default trust region)."""
-        out = np.empty((len(counts), len(signatures)))
-        for g, sig in enumerate(signatures):
-            r = (missing_w[fit] - sig[fit]) * sw
-            for d, c in enumerate(counts):
-                rr = r
-                if n_other:
-                    root = np.sqrt(c)
-                    rr = r - others @ lsq_linear(others * root[:, None], r * root,
-                                                 bounds=(-NUISANCE_STEPS, NUISANCE_STEPS),
-                                                 method="bvls").x
-                out[d, g] = c @ (rr * rr)
-        return out
+        """(draws, signatures) weighted SSE, the nuisance columns re-fitted in each draw."""
+        residuals = (missing_w[fit] - np.asarray(signatures)[:, fit]) * sw
+        return refit_sse(others, residuals, counts, NUISANCE_STEPS)
 
     strengths = np.asarray(candidate.strengths, float)
     coarse, first = np.unique(strengths, return_index=True)
