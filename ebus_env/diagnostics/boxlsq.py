@@ -8,12 +8,12 @@ Each fit is the convex problem::
 
 with A the (windows, columns) matrix, r_g one residual, c_d one draw's window counts. On its
 normal equations, G_d = A' C_d A and h_dg = A' C_d r_g, it is a box-constrained quadratic
-program; a point is its minimum exactly when it satisfies the Karush-Kuhn-Tucker conditions
-(Nocedal & Wright, *Numerical Optimization*, 2nd ed., Thm. 12.1 and 16.4). The bounds bind
-alike in nearly every draw, so each residual's active set is taken from its unit-weight fit,
-all draws are solved with it in one batched linear solve, and a draw's solution is kept only
-where the conditions hold; the rest, and any residual whose guess fails, go to bounded-variable
-least squares (scipy's BVLS, Stark & Parker 1995), as every fit did before.
+program, and a point is its minimum exactly when it satisfies the Karush-Kuhn-Tucker conditions
+(Nocedal & Wright, *Numerical Optimization*, 2nd ed., ch. 12 and 16). The bounds bind alike in
+nearly every draw: each residual's active set, taken from its unit-weight fit, starts
+primal-dual active-set iterations over all draws at once (batched linear solves), and a draw's
+solution is kept only where the conditions hold; the rest go to bounded-variable least squares
+(scipy's BVLS, Stark & Parker 1995, Comput. Stat. 10, 129-141).
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def refit_sse(a: np.ndarray, residuals: np.ndarray, counts: np.ndarray,
 
 
 def _active_set(gram, h, diag, side, bound, iterations: int = 8):
-    """Primal-dual active-set iterations (Hintermueller, Ito & Kunisch, SIAM J. Optim. 13,
-    2002) for min x'Gx/2 - h'x within +-bound, every draw at once from the guess ``side``
+    """Primal-dual active-set iterations (Hintermueller, Ito & Kunisch 2002, SIAM J. Optim. 13,
+    865-888) for min x'Gx/2 - h'x within +-bound, every draw at once from the guess ``side``
     (+1 at the upper bound, -1 at the lower, 0 free): solve with the bound variables held,
     then move each variable to the side its multiplier asks for, until no set changes. Returns
     x and G x - h; the caller checks the KKT conditions."""
