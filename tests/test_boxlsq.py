@@ -53,3 +53,12 @@ def test_without_columns_the_sse_is_the_weighted_sum_of_squares():
     residuals, counts = rng.normal(size=(3, 20)), rng.poisson(1.0, size=(5, 20)).astype(float)
     assert boxlsq.refit_sse(np.zeros((20, 0)), residuals, counts, 1.0) == pytest.approx(
         counts @ (residuals**2).T)
+
+
+def test_columns_without_information_go_to_bvls():
+    """All columns zero: the normal equations are singular in every draw; BVLS answers."""
+    rng = np.random.default_rng(5)
+    residuals, counts = rng.normal(size=(2, 15)), rng.poisson(1.0, size=(4, 15)).astype(float)
+    a = np.zeros((15, 3))
+    assert boxlsq.refit_sse(a, residuals, counts, 1.0) == pytest.approx(
+        counts @ (residuals**2).T)

@@ -77,7 +77,10 @@ def _active_set(gram, h, diag, side, bound, iterations: int = 8):
         held = side * bound
         system = np.where(both, gram + ridge, eye)
         rhs = np.where(free, h - np.einsum("dij,dj->di", gram, held), held)
-        x = np.linalg.solve(system, rhs[..., None])[..., 0]
+        try:
+            x = np.linalg.solve(system, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # a draw without information: every draw to BVLS
+            return np.full_like(h, np.nan), np.full_like(h, np.nan)
         grad = np.einsum("dij,dj->di", gram, x) - h
         multiplier = np.where(free, 0.0, -grad)  # > 0 pushes up, < 0 down
         trial = x + multiplier / diag
