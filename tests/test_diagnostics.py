@@ -99,6 +99,11 @@ def test_attribution_supports_nothing_in_noise_or_when_a_parameter_explains_it()
     cands.append(_candidate("aux.power_w", "parameter", s))
     d = attribution.attribute(2 * s + rng.normal(0, 50, n), noise, cands, np.ones(n, bool))
     assert d.verdict is None and d.status == "parameter" and "aux.power_w" in d.why
+    assert "calibrate it (--calibrate)" in d.why
+    # already calibrated: its value is what to question, not whether to calibrate
+    d = attribution.attribute(2 * s + rng.normal(0, 50, n), noise, cands, np.ones(n, bool),
+                              nuisance=("aux.power_w",))
+    assert d.status == "parameter" and "--calibrate" not in d.why and "--set" in d.why
 
 
 def _huber_reference(x, y, w, low, high):

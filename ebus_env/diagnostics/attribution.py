@@ -323,11 +323,16 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
                 "windows): the data cannot tell them apart"), significance, "tie")
     if params and params[0].explained >= top.explained - TIE and _gain(
             by_name, [params[0].name], top.name, y, w, usable, folds) < MIN_GAIN:
+        # a calibrated parameter fits the calibration hours, not these windows: its value (or
+        # its search range) is what to question; an uncalibrated one is simply to be fitted
+        fix = ("its calibrated value fits the calibration hours, not these windows: check it, "
+               "hold a value you know (--set) or widen its search range"
+               if params[0].name in nuisance else "calibrate it (--calibrate)")
         return Decision(ranking, selected, None, (
             f"the parameter {params[0].name} explains the missing power as well "
             f"({100 * params[0].explained:.0f} %, {top.name} {100 * top.explained:.0f} %): a "
-            "mis-set parameter is the simpler explanation; calibrate it (--calibrate) before "
-            "adding an effect"), significance, "parameter")
+            f"mis-set parameter is the simpler explanation; {fix} before adding an effect"),
+            significance, "parameter")
     return Decision(ranking, selected, top.name, "", significance, "named")
 
 
