@@ -31,9 +31,11 @@ NUISANCE = {
     "efficiency_map.gearbox_efficiency": (0.9, 1.04),
     "rint_battery.cell_capacity_ah": (0.6, 1.6),
     "rint_battery.cell_resistance_mohm": (0.3, 3.0),
+    "regen_cutoff.max_decel_mps2": (0.06, 1.0),
 }
 """The parameters that differ from bus to bus of one type (mass, rolling resistance,
-auxiliary base load, drivetrain efficiency, pack capacity and resistance), with the range a
+auxiliary base load, drivetrain efficiency, pack capacity and resistance, the deceleration up
+to which the motor brakes alone: each bus's brake blending), with the range a
 calibration searches as factors of the configured value (within the declared bounds): wide
 enough for a fleet's spread (the pack's, which the charging events pin down, also for another
 pack than the configured one), narrow enough that they cannot stand in for a missing effect."""
