@@ -409,6 +409,20 @@ def test_a_strength_interval_takes_in_the_estimate_on_other_windows():
     assert calibration.taking_in(Strength({}, {})).interval == calibration.interval
 
 
+def test_the_least_energy_of_a_strength_is_its_intervals_end_nearer_none():
+    """A verdict is withdrawn when its energy interval reaches what the log cannot tell from
+    nothing: the end nearer zero, in the estimate's direction, or past zero (negative)."""
+    def least(energy, band):
+        return Strength({"a.x": 1.0}, {"a.x": (0.5, 2.0)}, False, energy, band).least_energy_kwh()
+
+    assert least(4.5, (0.002, 33.4)) == pytest.approx(0.002)
+    assert least(4.5, (1.7, 9.0)) == pytest.approx(1.7)
+    assert least(-1.3, (-2.0, 0.4)) == pytest.approx(-0.4)  # the interval crosses zero
+    assert least(-1.3, (-2.0, -0.9)) == pytest.approx(0.9)
+    assert least(0.02, (0.01, 0.05)) == pytest.approx(0.01)
+    assert least(float("nan"), (float("nan"), float("nan"))) == np.inf
+
+
 def test_the_logs_resolution_is_the_standard_error_of_the_energy_its_windows_measure():
     """sqrt(sum (sigma_w t_w)^2) over the usable windows: 90 windows of 5 min measured to
     300 W each resolve 0.3 kW x 1/12 h x sqrt(90) = 0.24 kWh; unusable windows do not count.

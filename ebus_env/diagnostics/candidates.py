@@ -173,6 +173,17 @@ class Strength:
         return replace(self, interval=interval, energy_interval_kwh=union(
             self.energy_interval_kwh, other.energy_interval_kwh))
 
+    def least_energy_kwh(self) -> float:
+        """The least energy, in the direction of the estimate, that the effect adds anywhere in
+        its interval: min(s E_low, s E_high, |E|) with s = sign(E). Where it lies within the
+        log's resolution, the data cannot tell the effect from none (an effect without a
+        strength, whose energy is not estimated: infinite)."""
+        if not np.isfinite(self.energy_kwh):
+            return float("inf")
+        sign = np.sign(self.energy_kwh)
+        ends = [sign * e for e in self.energy_interval_kwh if np.isfinite(e)]
+        return float(min([abs(self.energy_kwh), *ends]))
+
 
 AT_BOUND = 0.02  # of the range
 

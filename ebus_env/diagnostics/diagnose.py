@@ -432,13 +432,19 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"{strength.energy_kwh:.3g} kWh over the log (its other parameters, or its "
                    "form, differ from this bus's)")
             status, verdict = "implausible", None
-        elif abs(strength.energy_kwh) < (floor_kwh := res.resolution_kwh()):
-            # the fit's strength adds less energy than the log can show at all: the shape
-            # matched noise, not an effect (a regen limit above the SoC the day reaches)
-            why = (f"the shape of {verdict} fits, the strength is implausible: at the strength "
-                   f"that fits it adds {strength.energy_kwh:.2g} kWh over the log, less than "
-                   f"the log resolves ({floor_kwh:.2g} kWh, the standard error of the energy "
-                   "it measures)")
+        elif strength.least_energy_kwh() < (floor_kwh := res.resolution_kwh()):
+            # the fit's strength, or one inside its interval, adds less energy than the log can
+            # show at all: the shape matched noise, not an effect (a regen limit above the SoC
+            # the day reaches)
+            low, high = strength.energy_interval_kwh
+            within = (f"at the strength that fits it adds {strength.energy_kwh:.2g} kWh"
+                      if abs(strength.energy_kwh) < floor_kwh else
+                      f"within its 90 % interval it adds as little as "
+                      f"{np.sign(strength.energy_kwh) * strength.least_energy_kwh():.2g} kWh "
+                      f"({low:.2g} to {high:.2g} kWh)")
+            why = (f"the shape of {verdict} fits, the strength is implausible: {within} over "
+                   f"the log, less than the log resolves ({floor_kwh:.2g} kWh, the standard "
+                   "error of the energy it measures)")
             status, verdict = "implausible", None
         else:
             # like with like: the missing power the fit predicts, the calibrated parameters
