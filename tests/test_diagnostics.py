@@ -697,6 +697,7 @@ def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_name
     from typer.testing import CliRunner
 
     from ebus_env.cli import app
+    from ebus_env.diagnostics.ladder import NUISANCE
     from ebus_env.diagnostics.reference import REFERENCE_AUX_SPAN_W, REFERENCE_SPAN
 
     log, normal = (hidden.OUT_DIR / f"{name}.csv.gz" for name in ("cabin_heating", "control"))
@@ -709,7 +710,7 @@ def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_name
     reference = report["reference"]
     assert reference["logs"] == ["control.csv"]
     assert {m["mode"] for m in reference["missing_by_mode"]} >= {"accelerating", "idle"}
-    assert len(reference["values"]) == 6
+    assert set(reference["values"]) == set(NUISANCE)  # every bus-to-bus parameter
     fitted = report["calibration"]["params"]
     for name, value in reference["values"].items():
         span = REFERENCE_AUX_SPAN_W if name.endswith("base_power_w") \
