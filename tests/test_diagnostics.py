@@ -242,12 +242,9 @@ def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(nam
         assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
     if name == "cabin_heating":
         # without the cabin the calibration takes its power up with the auxiliary base load
-        # and a drivetrain efficiency pressed against the low end of its range; with it, both
-        # come back (aux base load within 10 % of the truth's 4 kW)
-        assert d.ladder[0].range_ends.get("efficiency_map.gearbox_efficiency") == "lower"
-        assert d.ladder[-1].range_ends == {}
-        assert d.ladder[-1].values["auxiliaries.base_power_w"] == pytest.approx(4000, rel=0.1)
-        assert "efficiency_map.gearbox_efficiency (lower)" in d.text()
+        # (more than twice the truth's 4 kW); with it, the base load comes back within 10 %
+        base = [r.values["auxiliaries.base_power_w"] for r in d.ladder]
+        assert base[0] > 2 * 4000 and base[-1] == pytest.approx(4000, rel=0.1), base
 
 
 def test_control_day_supports_no_missing_effect():

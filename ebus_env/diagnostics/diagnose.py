@@ -417,7 +417,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                                      res.base_power_w, res.missing_w, weight, windows,
                                      nuisance_w, attribution.block_draws(int(windows.sum())))
 
-        strength = strength_on(fit)
+        strength = own = strength_on(fit)
         held = res.usable & ~in_cal
         if held.sum() >= attribution.MIN_WINDOWS:  # enough to check the estimate on
             strength = strength.taking_in(strength_on(held))
@@ -432,15 +432,17 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"{strength.energy_kwh:.3g} kWh over the log (its other parameters, or its "
                    "form, differ from this bus's)")
             status, verdict = "implausible", None
-        elif strength.least_energy_kwh() < (floor_kwh := res.resolution_kwh()):
-            # the fit's strength, or one inside its interval, adds less energy than the log can
-            # show at all: the shape matched noise, not an effect (a regen limit above the SoC
-            # the day reaches)
-            low, high = strength.energy_interval_kwh
-            within = (f"at the strength that fits it adds {strength.energy_kwh:.2g} kWh"
-                      if abs(strength.energy_kwh) < floor_kwh else
+        elif own.least_energy_kwh() < (floor_kwh := res.resolution_kwh()):
+            # the fit's strength, or one inside its interval on the windows it was fitted on,
+            # adds less energy than the log can show at all: the shape matched noise, not an
+            # effect (a regen limit above the SoC the day reaches). The held-out blocks' fit
+            # widens the doubt on the size, not on whether there is an effect: fewer windows
+            # resolve less, and a load that comes and goes may not be in them.
+            low, high = own.energy_interval_kwh
+            within = (f"at the strength that fits it adds {own.energy_kwh:.2g} kWh"
+                      if abs(own.energy_kwh) < floor_kwh else
                       f"within its 90 % interval it adds as little as "
-                      f"{np.sign(strength.energy_kwh) * strength.least_energy_kwh():.2g} kWh "
+                      f"{np.sign(own.energy_kwh) * own.least_energy_kwh():.2g} kWh "
                       f"({low:.2g} to {high:.2g} kWh)")
             why = (f"the shape of {verdict} fits, the strength is implausible: {within} over "
                    f"the log, less than the log resolves ({floor_kwh:.2g} kWh, the standard "
