@@ -236,3 +236,37 @@ def test_a_stopped_bench_resumes_and_rows_files_report_together(tmp_path, monkey
                        row("road_grade_01", None, False)])
     assert f["top1"] == (0.5, 2)
     assert "50 %  bar >= 90 %; 2 days" in capsys.readouterr().out
+
+
+def test_with_the_truths_bus_and_forms_the_library_drives_its_day_alike(tmp_path_factory):
+    """Two independent simulators, one bus: driven through a control day's log with the truth
+    simulator's own bus, its brake blending and its one drivetrain efficiency, the library
+    draws within 4 % of the truth's energy while accelerating and returns within 10 % of its
+    braking energy to the DC bus; with the motor braking up to the configured limit it
+    returns over 20 % more (``benchmarks/compare_braking.py``)."""
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    compare = pytest.importorskip("compare_braking")
+    from benchmarks.truth import cases as truth_cases
+
+    case = next(c for c in bench.truth_cases("truthsim", smoke=True) if c.hidden is None)
+    folder = tmp_path_factory.getbasetemp() / "truth-days"
+    folder.mkdir(exist_ok=True)
+    _, base, _, _, trace = truth_cases.day_trace(case)
+    profile = bench.truth_day("truthsim", case, folder)[0][0]
+    truth_w = compare.truth_power_w(trace, "battery")
+    truth_back_w = -compare.truth_power_w(trace, "drive_dc").clip(max=0.0)
+    accelerating = truth_cases.modes(trace)[: len(truth_w)] == truth_cases.MODES.index(
+        "accelerating")
+
+    def ratios(decel_mps2, one_efficiency):
+        lib = compare.library_power_w(profile, base, decel_mps2, one_efficiency)
+        n = min(len(truth_w), len(lib["battery"]))
+        acc = accelerating[:n]
+        return (lib["battery"][:n][acc].sum() / truth_w[:n][acc].sum(),
+                -lib["motor"][:n].clip(max=0.0).sum() / truth_back_w[:n].sum())
+
+    accelerating_ratio, back_ratio = ratios(base["regen_max_decel_mps2"], True)
+    assert abs(accelerating_ratio - 1.0) < 0.04
+    assert abs(back_ratio - 1.0) < 0.10
+    assert ratios(None, False)[1] > 1.2
