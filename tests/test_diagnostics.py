@@ -285,7 +285,10 @@ def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():
     # 0.0022 after adding the effect, as before.
     assert improvement(d.ladder) >= 0.4
     assert d.ladder[-1].held_out["nrmse"] <= 0.0025
-    assert d.ladder[-1].values["door_compressor.power_w"] == pytest.approx(5000.0, rel=0.15)
+    refit = d.ladder[-1].values["door_compressor.power_w"]
+    assert refit == pytest.approx(5000.0, rel=0.15)
+    low, high = d.named["interval"]["door_compressor.power_w"]  # it takes in the re-fit
+    assert low <= d.named["parameters"]["door_compressor.power_w"] <= high and low <= refit <= high
     model = load_bus("12m").with_effect(hidden.hidden_effect(case)).build()
     assert hasattr(model.kernel("run"), "signatures")  # compiled by numba like the built-ins
 
@@ -404,6 +407,22 @@ def test_a_strength_interval_takes_in_the_estimate_on_other_windows():
     assert both.value == {"a.x": 1.0} and both.energy_kwh == 10.0 and not both.at_bound
     assert both.interval == {"a.x": (0.9, 1.7)} and both.energy_interval_kwh == (9.0, 17.0)
     assert calibration.taking_in(Strength({}, {})).interval == calibration.interval
+
+
+def test_a_strength_interval_takes_in_the_re_calibrated_strength_and_its_energy():
+    """The bus re-calibrated with the effect ends at its own strength: the interval (and the
+    energy's, read off the effect's energy at each fitted strength) reaches it."""
+    curve = (np.array([0.0, 1.0, 2.0]), np.array([0.0, 10.0, 20.0]))
+    fitted = Strength({"a.x": 1.0}, {"a.x": (0.9, 1.1)}, False, 10.0, (9.0, 11.0), curve)
+    wider = fitted.taking_in_value(1.5)
+    assert wider.value == {"a.x": 1.0} and wider.energy_kwh == 10.0
+    assert wider.interval == {"a.x": (0.9, 1.5)}
+    assert wider.energy_interval_kwh == pytest.approx((9.0, 15.0))
+    assert fitted.taking_in_value(0.5).energy_interval_kwh == pytest.approx((5.0, 11.0))
+    inside = fitted.taking_in_value(1.05)
+    assert inside.interval == fitted.interval
+    assert inside.energy_interval_kwh == fitted.energy_interval_kwh
+    assert Strength({}, {}).taking_in_value(3.0) == Strength({}, {})
 
 
 def test_the_least_energy_of_a_strength_is_its_intervals_end_nearer_none():

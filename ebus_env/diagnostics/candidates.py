@@ -16,7 +16,7 @@ aside with the reason.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -159,6 +159,8 @@ class Strength:
     at_bound: bool = False  # the data want a strength beyond a bound
     energy_kwh: float = float("nan")  # what the effect at that strength adds over the log
     energy_interval_kwh: tuple[float, float] = (float("nan"), float("nan"))
+    # (strengths, kWh): the energy the effect adds over the log at each fitted strength
+    energy_curve: tuple = field(default=(), repr=False, compare=False)
 
     def taking_in(self, other: Strength) -> Strength:
         """This estimate, its interval widened to take in ``other``'s, the same fit on other
@@ -172,6 +174,21 @@ class Strength:
                     for name, band in self.interval.items()}
         return replace(self, interval=interval, energy_interval_kwh=union(
             self.energy_interval_kwh, other.energy_interval_kwh))
+
+    def taking_in_value(self, value: float) -> Strength:
+        """This estimate, its interval widened to take in ``value``, the strength the bus
+        re-calibrated with the effect ends at (every parameter free together, the model
+        run in full, where the attribution re-adjusts the calibrated parameters' linear
+        signatures): where the two fits disagree, the doubt reaches that far."""
+        if not self.value:
+            return self
+        (name, (low, high)), = self.interval.items()
+        interval = {name: (min(low, value), max(high, value))}
+        energy_low, energy_high = self.energy_interval_kwh
+        if self.energy_curve:
+            energy = float(np.interp(value, *self.energy_curve))
+            energy_low, energy_high = min(energy_low, energy), max(energy_high, energy)
+        return replace(self, interval=interval, energy_interval_kwh=(energy_low, energy_high))
 
     def least_energy_kwh(self) -> float:
         """The least energy, in the direction of the estimate, that the effect adds anywhere in
@@ -246,8 +263,10 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
         interval = tuple(np.quantile(spread, [0.05, 0.95]).tolist())
         interval = (min(interval[0], best), max(interval[1], best))
     lo, hi = candidate.model.bounds[candidate.model.param_index(name)]
+    energy_kwh = signatures @ windows.duration_h / 1e3  # at each strength of the grid
     return Strength({name: best}, {name: interval}, _beyond_bound(fine, cost[0], lo, hi),
-                    *effect_energy(grid, signatures, windows, best, interval))
+                    *effect_energy(grid, signatures, windows, best, interval),
+                    energy_curve=(grid, energy_kwh))
 
 
 def effect_energy(strengths, signatures_w: np.ndarray, windows, best: float,

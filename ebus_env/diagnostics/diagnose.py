@@ -488,6 +488,7 @@ class Fits:
     ladder: list
     runs: list
     after_runs: list
+    after_values: dict = field(default_factory=dict)  # the model's after the verdict's effect
 
 
 def _errors(cal: dict, held: dict) -> dict:
@@ -573,7 +574,21 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
         after_params = after_model.param_vector(after_model.carry_over(after_values))
         after_runs = [after_model.simulate(p, after_params, record_every=res.every)
                       for p in profiles]
-    return Fits(nrmse, ladder, runs, after_runs)
+    return Fits(nrmse, ladder, runs, after_runs, after_values)
+
+
+def with_refit(found: Attributed, after_values: dict) -> Attributed:
+    """The verdict's strength, its intervals widened to take in the strength the bus
+    re-calibrated with the effect ends at (:meth:`Strength.taking_in_value`)."""
+    strength = found.strength
+    name = next(iter(strength.value), None)
+    if found.verdict is None or name not in after_values:
+        return found
+    strength = strength.taking_in_value(float(after_values[name]))
+    ranking = [{**r, "interval": strength.interval,
+                "energy_interval_kwh": list(strength.energy_interval_kwh)}
+               if r["effect"] == found.verdict else r for r in found.ranking]
+    return replace(found, strength=strength, ranking=ranking)
 
 
 def reference_stage(bus: BusConfig, profiles, window_s, settings, polish_starts,
@@ -651,12 +666,13 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     found = voltage_stage(attribution_stage(res, candidates, nuisance, blocks, profiles),
                           check, by_name, res.windows)
     verdict = found.verdict
-    sentence = _sentence(found, by_name, by_name[verdict].model if verdict else model)
     timings["attribution_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     fits = ladder_stage(bus, res, profiles, found, by_name, add, first_rung, blocks, settings,
                         polish_starts, say, freedom)
+    found = with_refit(found, fits.after_values)
+    sentence = _sentence(found, by_name, by_name[verdict].model if verdict else model)
     timings["fit_s"] = time.perf_counter() - t1
     timings["total_s"] = time.perf_counter() - t0
     return Diagnosis(
