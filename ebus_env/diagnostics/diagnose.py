@@ -488,7 +488,7 @@ class Fits:
     ladder: list
     runs: list
     after_runs: list
-    after_values: dict = field(default_factory=dict)  # the model's after the verdict's effect
+    after_values: dict = field(default_factory=dict)  # the model after: its values, re-fitted
 
 
 def _errors(cal: dict, held: dict) -> dict:
