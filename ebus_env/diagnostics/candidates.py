@@ -263,24 +263,31 @@ def estimate_strength(candidate: Candidate, profiles, windows, basis, energy_j,
         interval = tuple(np.quantile(spread, [0.05, 0.95]).tolist())
         interval = (min(interval[0], best), max(interval[1], best))
     lo, hi = candidate.model.bounds[candidate.model.param_index(name)]
-    energy_kwh = signatures @ windows.duration_h / 1e3  # at each strength of the grid
-    return Strength({name: best}, {name: interval}, _beyond_bound(fine, cost[0], lo, hi),
-                    *effect_energy(grid, signatures, windows, best, interval),
-                    energy_curve=(grid, energy_kwh))
+    return fitted_strength(name, best, interval, energy_curve(grid, signatures, windows),
+                           _beyond_bound(fine, cost[0], lo, hi))
 
 
-def effect_energy(strengths, signatures_w: np.ndarray, windows, best: float,
-                  interval: tuple[float, float]) -> tuple[float, tuple[float, float]]:
-    """The energy [kWh] an effect adds over the log at strength ``best``, and its range over
-    ``interval``: each signature's extra power (one per strength) times the windows' hours
-    (every window, usable or not), linear between grid points."""
+def energy_curve(strengths, signatures_w: np.ndarray, windows) -> tuple[np.ndarray, np.ndarray]:
+    """(strengths, kWh): the energy an effect adds over the log at each strength of its grid,
+    each signature's extra power (one per strength) times the windows' hours (every window,
+    usable or not)."""
     grid, first = np.unique(np.asarray(strengths, float), return_index=True)
-    energy_kwh = signatures_w[first] @ windows.duration_h / 1e3
+    return grid, signatures_w[first] @ windows.duration_h / 1e3
+
+
+def fitted_strength(name: str, best: float, interval: tuple[float, float], curve,
+                    at_bound: bool = False) -> Strength:
+    """The strength ``best`` of parameter ``name`` with its interval, and the energy the
+    effect adds over the log there and over the interval, linear between the points of
+    ``curve`` (:func:`energy_curve`)."""
+    grid, energy_kwh = curve
     inside = energy_kwh[(grid > interval[0]) & (grid < interval[1])]
     ends = np.interp(interval, grid, energy_kwh)
-    return float(np.interp(best, grid, energy_kwh)), (
-        float(min(ends.min(), inside.min(initial=np.inf))),
-        float(max(ends.max(), inside.max(initial=-np.inf))))
+    return Strength({name: best}, {name: interval}, at_bound,
+                    float(np.interp(best, grid, energy_kwh)),
+                    (float(min(ends.min(), inside.min(initial=np.inf))),
+                     float(max(ends.max(), inside.max(initial=-np.inf)))),
+                    energy_curve=curve)
 
 
 def _beyond_bound(x: np.ndarray, cost: np.ndarray, low: float, high: float) -> bool:

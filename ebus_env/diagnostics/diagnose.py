@@ -21,8 +21,9 @@ from ebus_env.diagnostics import attribution, clues, quality, residual
 from ebus_env.diagnostics.candidates import (
     Strength,
     effect_candidates,
-    effect_energy,
+    energy_curve,
     estimate_strength,
+    fitted_strength,
     parameter_candidates,
 )
 from ebus_env.diagnostics.ladder import (
@@ -512,9 +513,8 @@ def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attribute
     if best is None or found.verdict is not None:
         return found
     c = by_name[best.effect]
-    strength = Strength({best.parameter: best.value}, {best.parameter: best.interval}, False,
-                        *effect_energy(c.strengths, c.signatures_w, windows, best.value,
-                                       best.interval))
+    strength = fitted_strength(best.parameter, best.value, best.interval,
+                               energy_curve(c.strengths, c.signatures_w, windows))
     why = (f"the missing power alone named no effect ({found.why}); the logged voltage shows "
            f"the pack's resistance changing over the log, and {best.effect} reproduces "
            f"{100 * best.explained:.0f} % of the change")
