@@ -657,8 +657,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
         console.print(table)
     style = "bold green" if result.verdict else "bold"
     console.print(f"[{style}]{result.sentence}[/]", highlight=False)
-    if result.pack_note:
-        console.print(result.pack_note, highlight=False)
+    for note in (result.pack_note, result.decide_note):
+        if note:
+            console.print(note, highlight=False)
     if result.caution:
         console.print(f"[yellow]{result.caution}[/]", highlight=False)
     console.print(f"[dim]{result.timings['total_s']:.1f} s[/]", highlight=False)

@@ -276,6 +276,7 @@ def test_users_effect_from_their_file_is_calibrated_and_the_error_falls():
     profiles = hidden_log(case.name)
     first = diagnose(load_bus("12m"), profiles)
     assert first.verdict is None  # no effect of the library explains it
+    assert "`--add file.py:Name`" in first.to_decide
     assert {"door_share", "idle_share"} & {c["feature"] for c in first.clues[:3]}
     d = diagnose(load_bus("12m"), profiles, add=[str(ROOT / case.effect)])
     assert d.verdict == "door_compressor"
@@ -456,6 +457,33 @@ def test_the_logs_resolution_is_the_standard_error_of_the_energy_its_windows_mea
     assert res.resolution_kwh() == pytest.approx(0.3 / 12 * np.sqrt(90), rel=1e-12)
 
 
+def test_an_open_diagnosis_says_what_to_log_or_hold_and_skips_what_the_log_has():
+    """A tie or no verdict names the signal that would decide it, only where the log lacks
+    it: the HVAC's power for the cabin, counts (then a weighed curb mass, unless held) for
+    passenger mass, the pack's current and voltage for a cold pack; nothing once named."""
+    from ebus_env.diagnostics.deciding import to_decide
+    from tests.conftest import standing_profile
+
+    soc_log = [standing_profile(60.0)]
+    tie = to_decide("tie", ["cabin_hvac", "aux_schedule", "road_grade"], soc_log)
+    assert tie.count("`logged_load_kw`") == 2 and "road_grade" not in tie
+    metered = [standing_profile(60.0, logged_load_w=5e3)]
+    assert to_decide("tie", ["cabin_hvac", "aux_schedule"], metered) == ""
+    assert "`passengers`" in to_decide("outside library", ["passenger_mass"], soc_log)
+    counted = [standing_profile(60.0, passenger_count=20.0, logged_load_w=0.0)]
+    assert "--set vehicle_body.curb_mass_kg" in to_decide("implausible", ["passenger_mass"],
+                                                          counted)
+    assert to_decide("implausible", ["passenger_mass"], counted,
+                     held={"vehicle_body.curb_mass_kg": 12500.0}) == ""
+    cold = to_decide("outside library", ["ambient_battery"], soc_log)
+    assert "`battery_voltage_v`" in cold and "--add file.py:Name" in cold
+    bms = [standing_profile(60.0)]
+    bms[0].measured.update(battery_current_a=np.zeros(600), battery_voltage_v=np.zeros(600))
+    assert "battery" not in to_decide("outside library", ["ambient_battery"], bms)
+    assert to_decide("named", ["cabin_hvac"], soc_log) == ""
+    assert to_decide("parameter", ["cabin_hvac"], soc_log) == ""
+
+
 def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report_says_how_far(
         tmp_path):
     """A heated day whose cabin has no fans, no fresh air and a heat pump of COP 6: the
@@ -474,6 +502,7 @@ def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report
     assert d.verdict is None and d.status == "implausible"
     assert d.ranking[0]["effect"] == "cabin_hvac"
     assert "cabin_hvac.ua_w_per_k ends at its lower bound, 10 (range 10 to 1500)" in d.why
+    assert "the HVAC's electric power as `logged_load_kw`" in d.to_decide  # what would decide
 
     def cabin_kwh(bus, values):
         model = bus.build(profiles[0].dt_s)

@@ -17,7 +17,7 @@ import numpy as np
 from ebus_env.calibration.isopt import ISOPTSettings
 from ebus_env.calibration.problem import logs_current
 from ebus_env.config import BusConfig
-from ebus_env.diagnostics import attribution, clues, quality, residual
+from ebus_env.diagnostics import attribution, clues, deciding, quality, residual
 from ebus_env.diagnostics.candidates import (
     Strength,
     effect_candidates,
@@ -69,6 +69,7 @@ class Diagnosis:
     verdict: str | None
     sentence: str
     why: str
+    to_decide: str  # what to log or hold where the log leaves the question open, or ""
     significance: float  # of the missing power above noise, in standard deviations
     status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter",
     # "implausible", "voltage" (named from the resistance the logged voltage shows)
@@ -117,6 +118,11 @@ class Diagnosis:
         return self.resistance["finding"] if self.resistance else ""
 
     @property
+    def decide_note(self) -> str:
+        """What would decide the question the log leaves open (:mod:`.deciding`), or ""."""
+        return f"What would decide it: {self.to_decide}" if self.to_decide else ""
+
+    @property
     def caution(self) -> str:
         """What the calibrated parameters at an end of their range mean, or ""."""
         ends = self.range_ends
@@ -129,7 +135,8 @@ class Diagnosis:
                 "that in mind.")
 
     def to_json(self) -> dict:
-        keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "significance",
+        keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "to_decide",
+                "significance",
                 "status", "mode_clue",
                 "ranking", "parameters", "selected", "set_aside", "modes", "bins",
                 "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
@@ -678,6 +685,8 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     return Diagnosis(
         bus=bus.name, logs=[p.name for p in profiles], basis=res.basis,
         window_s=res.window_s, verdict=verdict, sentence=sentence, why=found.why,
+        to_decide=deciding.to_decide(found.status, [r["effect"] for r in found.ranking],
+                                     profiles, held=known),
         significance=found.significance, status=found.status, mode_clue=found.clue,
         ranking=found.ranking, parameters=found.parameters,
         selected=found.selected, set_aside=aside, modes=found.modes, bins=found.bins,

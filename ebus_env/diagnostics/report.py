@@ -109,7 +109,7 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
 
 def text_report(d) -> str:
     """Plain-text report."""
-    lines = [d.sentence, *[note for note in (d.pack_note, d.caution) if note], ""]
+    lines = [d.sentence, *[note for note in (d.pack_note, d.decide_note, d.caution) if note], ""]
     for title, header, rows in tables(d):
         widths = [max(len(str(x)) for x in [h, *[r[i] for r in rows]])
                   for i, h in enumerate(header)]
@@ -142,7 +142,9 @@ def write_html(d, path: str | Path) -> None:
     from ebus_env.diagnostics.plots import FIGURES
 
     images = {name: Figure.of(fn(d), name, _ALT[name]) for name, fn in FIGURES.items()}
-    sections = [Section("Measured and simulated SoC", figures=[images["soc"]]),
+    decide = [Section("What would decide it", text=d.to_decide[:1].upper() + d.to_decide[1:])]
+    sections = [*(decide if d.to_decide else []),
+                Section("Measured and simulated SoC", figures=[images["soc"]]),
                 Section("Where it fails", figures=[images["missing_power"], images["modes"]]),
                 Section("Which effect is missing", figures=[images["attribution"]]),
                 Section("Error ladder", figures=[images["ladder"]])]
