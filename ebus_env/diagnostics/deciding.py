@@ -1,6 +1,6 @@
 """What would decide a diagnosis the log leaves open: for each library effect that a SoC log
-confuses with something else, the log column (or the known value) that tells them apart, and
-whether this log already has it.
+confuses with something else, the log columns that tell them apart, and whether this log
+already has them.
 
 Read off the truth bench (docs/validation.md, "Pairs that SoC alone cannot separate"): a
 calibrated model takes up the mean of a passenger load in its curb mass and of a cold pack's
@@ -8,8 +8,10 @@ loss in its resistance; a load the model lacks looks like base load in 5-min SoC
 Each entry below names only what the diagnosis then uses: a logged load is replayed
 (``replayed_load`` becomes a candidate, and its ``scale`` says how much of it the pack
 supplies), a logged current and voltage give the pack's resistance over the day and free the
-brake-blending share, passenger counts drive the passenger mass, altitude gives the grade,
-and a value held with ``--set`` is no longer calibrated away.
+brake-blending share, passenger counts drive the passenger mass, altitude gives the grade.
+Where the log has them all, nothing is asked: holding the bus's weighed curb mass, for one,
+did not name passenger mass on more bench days (the rolling resistance and drivetrain
+efficiency took up the mean load instead; docs/validation.md).
 """
 
 from __future__ import annotations
@@ -20,14 +22,11 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class Decider:
     """How to tell an effect from what a SoC log confuses it with: where the log lacks any of
-    ``columns``, ``log`` says what to log and what the diagnosis does with it; where it has
-    them, ``hold`` names a value to hold (``held``: the parameter), if any."""
+    ``columns``, ``log`` says what to log and what the diagnosis does with it."""
 
     confused_with: str
     columns: tuple[str, ...]
     log: str
-    hold: str = ""
-    held: str = ""
 
 
 def _replay(what: str) -> str:
@@ -43,10 +42,8 @@ DECIDERS = {
                             _replay("the switched loads' (lights, heaters) electric power")),
     "passenger_mass": Decider(
         "a heavier bus (the calibrated curb mass takes up the mean load)", ("passengers",),
-        "log the passenger counts as `passengers` (automatic passenger counters)",
-        hold="hold the bus's weighed curb mass (`--set vehicle_body.curb_mass_kg=...`): the "
-             "counts then carry the whole load, not only its swings",
-        held="vehicle_body.curb_mass_kg"),
+        "log the passenger counts as `passengers` (automatic passenger counters): the "
+        "passenger mass then follows them"),
     "ambient_battery": Decider(
         "a pack of higher resistance or a larger base load",
         ("battery_current_a", "battery_voltage_v"),
@@ -80,23 +77,18 @@ def logged(profiles, column: str) -> bool:
     return all(key in p.channels or key in p.measured for p in profiles)
 
 
-def to_decide(status: str, effects: list[str], profiles, held=()) -> str:
+def to_decide(status: str, effects: list[str], profiles) -> str:
     """What would decide a diagnosis that ended with ``status`` among ``effects`` (best
     first): for the effects it weighed (both of a tie, the best otherwise) the columns this
-    log lacks and what the diagnosis does with them, or the value to hold (``held``: the
-    parameters already held); for a load outside the library, how to measure it. "" where
-    the verdict is named, or nothing is left to log or hold."""
+    log lacks and what the diagnosis does with them; for a load outside the library, how to
+    measure it. "" where the verdict is named, or the log has it all."""
     if status not in OPEN:
         return ""
     parts = []
     for name in effects[:2] if status == "tie" else effects[:1]:
         decider = DECIDERS.get(name)
-        if decider is None:
-            continue
-        if not all(logged(profiles, c) for c in decider.columns):
+        if decider is not None and not all(logged(profiles, c) for c in decider.columns):
             parts.append(f"to tell {name} from {decider.confused_with}, {decider.log}")
-        elif decider.hold and decider.held not in held:
-            parts.append(f"to tell {name} from {decider.confused_with}, {decider.hold}")
     if status == "outside library" and not logged(profiles, "logged_load_kw"):
         parts.append(f"for a load the library lacks, {_replay('its electric power')}, or "
                      "write it as an effect of your own (`--add file.py:Name`)")
