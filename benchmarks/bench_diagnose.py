@@ -32,6 +32,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import statistics
@@ -50,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 from ebus_env.config import load_bus  # noqa: E402
 from ebus_env.diagnostics import diagnose, hidden  # noqa: E402
-from ebus_env.diagnostics.ladder import improvement  # noqa: E402
+from ebus_env.diagnostics.ladder import Freedom, improvement  # noqa: E402
 from ebus_env.io.measured import load_log  # noqa: E402
 
 BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
@@ -328,10 +329,17 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     :data:`ORACLE`: the hidden effect in a perfect form."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
-    source, case, folder, current_voltage, oracle, reference = (*job, False, False, False)[:6]
+    source, case, folder, current_voltage, oracle, reference, known_mass = (
+        *job, False, False, False, False)[:7]
     profiles, truth = truth_day(source, case, Path(folder), current_voltage, oracle)
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     freedom = None
+    if known_mass:  # a weighed bus: its true curb mass held, within the declared bounds
+        base = truth["base"]
+        base = ast.literal_eval(base) if isinstance(base, str) else base
+        bus = replace(bus, bounds={**bus.bounds, "vehicle_body": {
+            **bus.bounds.get("vehicle_body", {}), "curb_mass_kg": [9000.0, 17000.0]}})
+        freedom = Freedom(fixed={"vehicle_body.curb_mass_kg": float(base["curb_mass_kg"])})
     t0, cpu0 = time.perf_counter(), time.process_time()
     if reference:  # a normal day of the same bus
         from benchmarks.truth.cases import reference_case
@@ -339,11 +347,11 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
 
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
         reference = reference_stage(bus, normal_day, None, None, None, None)
-    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
+    d = diagnose(bus, profiles, calibrate=True, reference=reference or None, freedom=freedom)
     plain = d.to_json()
     if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")
-        freedom = reference.freedom(bus.build(profiles[0].dt_s))
+        freedom = reference.freedom(bus.build(profiles[0].dt_s), freedom)
     row = {"cpu_s": time.process_time() - cpu0, "source": source, "case": case.case_id,
            "hidden": case.hidden, "expected": truth["expected_verdict"],
            "outside_modes": truth.get("outside_modes") or [],
@@ -430,6 +438,12 @@ def figures(rows) -> dict:
 
     return {
         "top1": share(right, library),
+        # the ranking's first effect, named or not: a lead on a day left open (a control day's
+        # ranking has a first effect too)
+        "ranked_first": share([r for r in library if r.get("top") == r["expected"]], library),
+        "open_ranked_first": share([r for r in library if not r["right"]
+                                    and r.get("top") == r["expected"]],
+                                   [r for r in library if not r["right"]]),
         "false_alarms": share([r for r in control if r["verdict"]], control),
         # the clue is right when it names a mode that takes >= 25 % of the load's energy
         "outside": share([r for r in outside if r["status"] == "outside library"
@@ -518,7 +532,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   controls: int | None = None, current_voltage: bool = False,
                   rows_path: Path | None = None, oracle: bool = False,
                   reference: bool = False, effects: tuple[str, ...] = (),
-                  resume: bool = False) -> None:
+                  resume: bool = False, known_mass: bool = False) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -527,7 +541,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                                if current_voltage else "")
           + (", logs with the hidden effect's own power (oracle; control days left out: "
              "they have none)" if oracle else "")
-          + (", each against a normal day of the same bus (--reference)" if reference else ""))
+          + (", each against a normal day of the same bus (--reference)" if reference else "")
+          + (", the true curb mass held (--known-curb-mass)" if known_mass else ""))
     jobs = []
     for source in sources:
         module, why = truth_module(source)
@@ -537,7 +552,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         if current_voltage and source != "truthsim":
             print(f"  {source}: its logs have no pack current (SoC only): skipped")
             continue
-        jobs += [(source, c, str(folder), current_voltage, oracle, reference)
+        jobs += [(source, c, str(folder), current_voltage, oracle, reference, known_mass)
                  for c in truth_cases(source, smoke, per_effect, controls, effects)
                  if not (oracle and c.hidden is None)]
     rows = []
@@ -578,6 +593,10 @@ def report(rows, oracle: bool = False, workers: int = 2) -> None:
     print("\nFigures against their bars")
     line("top-1 right over the library's effects", f"{100 * f['top1'][0]:.0f} %",
          f"bar >= 90 %; {f['top1'][1]} days")
+    line("  the hidden effect ranked first, named or not", f"{100 * f['ranked_first'][0]:.0f} %",
+         f"{f['ranked_first'][1]} days")
+    line("  ... on the days without the right verdict", f"{100 * f['open_ranked_first'][0]:.0f} %",
+         f"{f['open_ranked_first'][1]} days")
     line("control days with a verdict", f"{100 * f['false_alarms'][0]:.0f} %",
          f"bar <= 5 %; {f['false_alarms'][1]} days")
     line("outside library: 'no library effect' + right mode", f"{100 * f['outside'][0]:.0f} %",
@@ -639,6 +658,9 @@ def main() -> None:
     parser.add_argument("--reference", action="store_true",
                         help="out of family: diagnose each day against a normal day of the "
                         "same bus (diagnose --reference)")
+    parser.add_argument("--known-curb-mass", action="store_true",
+                        help="out of family: hold each day's true curb mass (a weighed bus; "
+                        "diagnose --set vehicle_body.curb_mass_kg=...)")
     parser.add_argument("--effect", action="append", default=[],
                         help="out of family: only the days hiding this effect (repeatable; "
                         "the truth bench's names, e.g. cold_battery), and the control days")
@@ -663,7 +685,8 @@ def main() -> None:
         cache.mkdir(parents=True, exist_ok=True)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
-                      args.oracle, args.reference, tuple(args.effect), args.resume)
+                      args.oracle, args.reference, tuple(args.effect), args.resume,
+                      args.known_curb_mass)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:
