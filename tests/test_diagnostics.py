@@ -470,6 +470,8 @@ def test_an_open_diagnosis_says_what_to_log_or_hold_and_skips_what_the_log_has()
     metered = [standing_profile(60.0, logged_load_w=5e3)]
     assert to_decide("tie", ["cabin_hvac", "aux_schedule"], metered) == ""
     assert "`passengers`" in to_decide("outside library", ["passenger_mass"], soc_log)
+    cabin = to_decide("outside library", ["cabin_hvac"], soc_log)  # the submeter asked once
+    assert cabin.count("`logged_load_kw`") == 1 and "its electric power the same way" in cabin
     counted = [standing_profile(60.0, passenger_count=20.0)]
     assert to_decide("implausible", ["passenger_mass"], counted) == ""
     cold = to_decide("outside library", ["ambient_battery"], soc_log)

@@ -84,12 +84,15 @@ def to_decide(status: str, effects: list[str], profiles) -> str:
     measure it. "" where the verdict is named, or the log has it all."""
     if status not in OPEN:
         return ""
-    parts = []
+    parts, asked = [], set()
     for name in effects[:2] if status == "tie" else effects[:1]:
         decider = DECIDERS.get(name)
         if decider is not None and not all(logged(profiles, c) for c in decider.columns):
             parts.append(f"to tell {name} from {decider.confused_with}, {decider.log}")
+            asked.update(decider.columns)
     if status == "outside library" and not logged(profiles, "logged_load_kw"):
-        parts.append(f"for a load the library lacks, {_replay('its electric power')}, or "
-                     "write it as an effect of your own (`--add file.py:Name`)")
+        replay = ("log its electric power the same way" if "logged_load_kw" in asked
+                  else _replay("its electric power"))
+        parts.append(f"for a load the library lacks, {replay}, or write it as an effect of "
+                     "your own (`--add file.py:Name`)")
     return "; ".join(parts) + "." if parts else ""

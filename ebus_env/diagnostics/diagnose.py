@@ -69,7 +69,7 @@ class Diagnosis:
     verdict: str | None
     sentence: str
     why: str
-    to_decide: str  # what to log or hold where the log leaves the question open, or ""
+    to_decide: str  # what to log where the log leaves the question open, or ""
     significance: float  # of the missing power above noise, in standard deviations
     status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter",
     # "implausible", "voltage" (named from the resistance the logged voltage shows)
@@ -136,11 +136,10 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "to_decide",
-                "significance",
-                "status", "mode_clue",
-                "ranking", "parameters", "selected", "set_aside", "modes", "bins",
-                "worst_windows", "clues", "data_issues", "excluded_windows", "nrmse",
-                "calibration", "reference", "resistance", "timings")
+                "significance", "status", "mode_clue", "ranking", "parameters", "selected",
+                "set_aside", "modes", "bins", "worst_windows", "clues", "data_issues",
+                "excluded_windows", "nrmse", "calibration", "reference", "resistance",
+                "timings")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         return _plain(out)
