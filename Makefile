@@ -27,7 +27,7 @@ test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2 -m "not slow"
 
 test-all: $(STAMP)
-	$(VENV)/bin/python -m pytest -n 2
+	$(VENV)/bin/python -m pytest -n 2 --durations=25   # the slowest, to keep the whole suite short
 
 bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/bench_core.py
