@@ -458,7 +458,7 @@ def test_the_logs_resolution_is_the_standard_error_of_the_energy_its_windows_mea
     assert res.resolution_kwh() == pytest.approx(0.3 / 12 * np.sqrt(90), rel=1e-12)
 
 
-def test_an_open_diagnosis_says_what_to_log_or_hold_and_skips_what_the_log_has():
+def test_an_open_diagnosis_says_what_to_log_and_skips_what_the_log_has():
     """A tie or no verdict names the signal that would decide it, only where the log lacks
     it: the HVAC's power for the cabin, counts for passenger mass, the pack's current and
     voltage for a cold pack; nothing once named."""
