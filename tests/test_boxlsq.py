@@ -1,4 +1,5 @@
-"""The batched bounded re-fit equals one bounded-variable least-squares fit per draw."""
+"""The bounded least-squares fits equal scipy's bounded-variable least squares (BVLS): the
+batched re-fit draw by draw, and one fit at a time from any warm start."""
 
 from __future__ import annotations
 
@@ -62,3 +63,42 @@ def test_columns_without_information_go_to_bvls():
     a = np.zeros((15, 3))
     assert boxlsq.refit_sse(a, residuals, counts, 1.0) == pytest.approx(
         counts @ (residuals**2).T)
+
+
+def _bvls_x(a, b, low, high):
+    return lsq_linear(a, b, bounds=(low, high), method="bvls").x
+
+
+def test_one_fit_equals_bvls_from_any_warm_start():
+    """Mixed bounds (>= 0, a box, none) on nearly collinear columns: the same minimum as BVLS,
+    cold, warm-started from the fit's own bounds, and from a wrong guess; the bounds it
+    reports are the ones the solution sits at."""
+    rng = np.random.default_rng(6)
+    for trial in range(80):
+        n, k = int(rng.integers(12, 120)), int(rng.integers(1, 8))
+        a = rng.normal(size=(n, k)) * rng.uniform(0.1, 1e3, k)
+        if k > 1:
+            a[:, 1] = a[:, 0] * 0.95 + 0.05 * a[:, 1]
+        b = a @ rng.normal(0, 3, k) + rng.normal(0, 1, n) * a.std()
+        low = np.where(rng.random(k) < 0.4, 0.0, np.where(rng.random(k) < 0.5, -1.0, -np.inf))
+        high = np.where(np.isfinite(low) & (low < 0), 1.0, np.inf)
+        ref = _bvls_x(a, b, low, high)
+        cost = np.sum((a @ ref - b) ** 2)
+        x, side = boxlsq.bounded_lstsq(a, b, low, high)
+        for guess in (side, -side, rng.integers(-1, 2, k).astype(float)):
+            y, again = boxlsq.bounded_lstsq(a, b, low, high, guess * np.isfinite(
+                np.where(guess > 0, high, low)))
+            assert np.sum((a @ y - b) ** 2) <= cost * (1 + 1e-9) + 1e-12, trial
+            np.testing.assert_array_equal(again, side)
+        np.testing.assert_allclose(x, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
+        assert np.all(x >= low) and np.all(x <= high)
+        np.testing.assert_array_equal(side, np.where(x >= high, 1, np.where(x <= low, -1, 0)))
+
+
+def test_a_fit_the_active_set_cannot_finish_goes_to_bvls(monkeypatch):
+    rng = np.random.default_rng(7)
+    a, b = rng.normal(size=(30, 4)), rng.normal(size=30) * 5
+    low, high = np.array([0.0, -0.1, -np.inf, 0.0]), np.array([np.inf, 0.1, np.inf, np.inf])
+    monkeypatch.setattr(boxlsq, "_active_set", lambda gram, h, *_: (np.zeros_like(h), -h))
+    x, _ = boxlsq.bounded_lstsq(a, b, low, high)
+    np.testing.assert_allclose(x, _bvls_x(a, b, low, high), rtol=1e-12)

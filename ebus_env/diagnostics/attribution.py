@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import lsq_linear
+
+from ebus_env.diagnostics.boxlsq import bounded_lstsq
 
 MIN_EXPLAINED = 0.3
 MIN_SIGNIFICANCE = 3.0
@@ -97,22 +98,22 @@ def _fit(x: np.ndarray, y: np.ndarray, w: np.ndarray, nonneg: np.ndarray,
         min_beta  sum_w huber(sqrt(w) (y - x beta))
 
     by iteratively reweighted least squares (Holland & Welsch 1977, Commun. Statist. A6(9)
-    813-827): each step solves the bounded linear least-squares problem (scipy's
-    ``lsq_linear``, bounded-variable) with the windows beyond ``HUBER_C`` weighted down by
-    ``HUBER_C / |r|``. That quadratic lies above Huber's loss and touches it at the current
-    residuals, so every step lowers the loss, to the convex problem's minimum; a third of the
-    cost of ``least_squares(loss="huber")`` on these small, nearly collinear problems."""
+    813-827): each step solves the bounded linear least-squares problem
+    (:func:`~ebus_env.diagnostics.boxlsq.bounded_lstsq`, from the bounds that held in the
+    step before) with the windows beyond ``HUBER_C`` weighted down by ``HUBER_C / |r|``. That
+    quadratic lies above Huber's loss and touches it at the current residuals, so every step
+    lowers the loss, to the convex problem's minimum."""
     sw = np.sqrt(w)
     a, b = x * sw[:, None], y * sw
-    low, high = bounds or _bounds(nonneg)
+    low, high = (np.asarray(v, float) for v in (bounds or _bounds(nonneg)))
     scale = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
-    beta = lsq_linear(a, b, bounds=(low, high), method="bvls").x
+    beta, side = bounded_lstsq(a, b, low, high)
     r = np.abs(a @ beta - b)
     if not np.any(r > HUBER_C):
         return beta  # no window in the linear part of the loss: least squares is the answer
     for _ in range(FIT_STEPS):
         v = np.sqrt(np.minimum(1.0, HUBER_C / np.maximum(r, 1e-300)))
-        new = lsq_linear(a * v[:, None], b * v, bounds=(low, high), method="bvls").x
+        new, side = bounded_lstsq(a * v[:, None], b * v, low, high, side)
         moved = float(np.max(np.abs(new - beta) * scale))
         beta = new
         if moved <= FIT_TOL * (1.0 + float(np.linalg.norm(b))):

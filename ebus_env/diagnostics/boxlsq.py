@@ -1,6 +1,8 @@
-"""Many small bounded least-squares re-fits that share one matrix: the calibrated parameters'
-re-fit in every bootstrap draw and at every strength of a candidate
-(:func:`~ebus_env.diagnostics.candidates.estimate_strength`).
+"""Small bounded least-squares fits, exact and fast: many re-fits that share one matrix (the
+calibrated parameters' re-fit in every bootstrap draw and at every strength of a candidate,
+:func:`~ebus_env.diagnostics.candidates.estimate_strength`), and one fit at a time warm-started
+from the bounds that held in the fit before (:func:`bounded_lstsq`: the reweighting steps of a
+robust fit, :mod:`~ebus_env.diagnostics.attribution`).
 
 Each fit is the convex problem::
 
@@ -51,11 +53,8 @@ def refit_sse(a: np.ndarray, residuals: np.ndarray, counts: np.ndarray,
         x0 = lsq_linear(a, r, bounds=(-bound, bound), method="bvls").x
         side = np.where(np.abs(x0) >= bound * (1 - 1e-9), np.sign(x0), 0.0)
         x, grad = _active_set(gram, cross[:, g, :], diag, np.broadcast_to(
-            side, (len(counts), n)).copy(), bound)
-        # the KKT conditions, from x alone: zero gradient where free, pointing out at a bound
-        upper, lower, tol = x >= bound * (1 - 1e-12), x <= -bound * (1 - 1e-12), scale[:, None]
-        ok = np.all(np.abs(x) <= bound * (1 + 1e-12), axis=1) & np.all(np.where(
-            upper, grad <= tol, np.where(lower, grad >= -tol, np.abs(grad) <= tol)), axis=1)
+            side, (len(counts), n)).copy(), -bound, bound)
+        ok = _kkt(x, grad, -bound, bound, scale[:, None])
         rr = r - x[ok] @ a.T
         out[ok, g] = np.einsum("dm,dm->d", counts[ok], rr * rr)
         for d in np.flatnonzero(~ok):
@@ -63,18 +62,51 @@ def refit_sse(a: np.ndarray, residuals: np.ndarray, counts: np.ndarray,
     return out
 
 
-def _active_set(gram, h, diag, side, bound, iterations: int = 8):
+def bounded_lstsq(a: np.ndarray, b: np.ndarray, low: np.ndarray, high: np.ndarray,
+                  side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """min ||a x - b|| with low <= x <= high (bounds may be infinite), and the bound each
+    coefficient sits at (+1 upper, -1 lower, 0 free), to warm-start the next fit of a similar
+    problem (``side``; default: from the unconstrained fit). The active-set iterations start
+    from that guess; a solution that breaks the KKT conditions goes to BVLS, so the answer is
+    always the convex problem's minimum."""
+    gram, h = a.T @ a, a.T @ b
+    diag = np.maximum(np.diag(gram), 1e-300)
+    if side is None:
+        x0 = np.linalg.lstsq(a, b, rcond=None)[0]
+        side = np.where(x0 > high, 1.0, np.where(x0 < low, -1.0, 0.0))
+    x, grad = _active_set(gram[None], h[None], diag[None], side[None].astype(float), low, high)
+    scale = KKT_TOL * (np.abs(h).max(initial=0.0) + np.abs(gram).max(initial=0.0)
+                       * np.abs(np.where(np.isfinite(x[0]), x[0], 0.0)).max(initial=1.0))
+    if _kkt(x, grad, low, high, scale)[0]:
+        x = x[0]
+    else:
+        x = lsq_linear(a, b, bounds=(low, high), method="bvls").x
+    return x, np.where(x >= high, 1.0, np.where(x <= low, -1.0, 0.0))
+
+
+def _kkt(x, grad, low, high, tol) -> np.ndarray:
+    """Per draw: x within its bounds and the KKT conditions hold, from x and the gradient
+    G x - h alone: zero where free, pointing out of the box at a bound."""
+    with np.errstate(invalid="ignore"):  # inf - inf at an infinite bound: never at it
+        upper = x >= high - 1e-12 * np.abs(high)
+        lower = x <= low + 1e-12 * np.abs(low)
+    inside = (x <= high + 1e-12 * np.abs(high)) & (x >= low - 1e-12 * np.abs(low))
+    return np.all(inside & np.where(upper, grad <= tol, np.where(
+        lower, grad >= -tol, np.abs(grad) <= tol)), axis=1)
+
+
+def _active_set(gram, h, diag, side, low, high, iterations: int = 8):
     """Primal-dual active-set iterations (Hintermueller, Ito & Kunisch 2002, SIAM J. Optim. 13,
-    865-888) for min x'Gx/2 - h'x within +-bound, every draw at once from the guess ``side``
-    (+1 at the upper bound, -1 at the lower, 0 free): solve with the bound variables held,
-    then move each variable to the side its multiplier asks for, until no set changes. Returns
-    x and G x - h; the caller checks the KKT conditions."""
+    865-888) for min x'Gx/2 - h'x within [low, high], every draw at once from the guess
+    ``side`` (+1 at the upper bound, -1 at the lower, 0 free): solve with the bound variables
+    held, then move each variable to the side its multiplier asks for, until no set changes.
+    Returns x and G x - h; the caller checks the KKT conditions."""
     eye = np.eye(gram.shape[1])
     ridge = 1e-14 * np.abs(gram).max(axis=(1, 2))[:, None, None] * eye  # collinear columns
     for _ in range(iterations):
         free = side == 0
         both = free[:, :, None] & free[:, None, :]
-        held = side * bound
+        held = np.where(side > 0, high, np.where(side < 0, low, 0.0))
         system = np.where(both, gram + ridge, eye)
         rhs = np.where(free, h - np.einsum("dij,dj->di", gram, held), held)
         try:
@@ -84,7 +116,7 @@ def _active_set(gram, h, diag, side, bound, iterations: int = 8):
         grad = np.einsum("dij,dj->di", gram, x) - h
         multiplier = np.where(free, 0.0, -grad)  # > 0 pushes up, < 0 down
         trial = x + multiplier / diag
-        new = np.where(trial > bound, 1.0, np.where(trial < -bound, -1.0, 0.0))
+        new = np.where(trial > high, 1.0, np.where(trial < low, -1.0, 0.0))
         if np.array_equal(new, side):
             break
         side = new
