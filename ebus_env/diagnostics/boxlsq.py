@@ -66,20 +66,38 @@ def bounded_lstsq(a: np.ndarray, b: np.ndarray, low: np.ndarray, high: np.ndarra
                   side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """min ||a x - b|| with low <= x <= high (bounds may be infinite), and the bound each
     coefficient sits at (+1 upper, -1 lower, 0 free), to warm-start the next fit of a similar
-    problem (``side``; default: from the unconstrained fit). The active-set iterations start
-    from that guess; a solution that breaks the KKT conditions goes to BVLS, so the answer is
-    always the convex problem's minimum."""
+    problem (``side``; default: none binds). Primal-dual active-set steps (as
+    :func:`_active_set`, for one problem) from that guess; a solution that breaks the KKT
+    conditions goes to BVLS, so the answer is always the convex problem's minimum."""
     gram, h = a.T @ a, a.T @ b
-    diag = np.maximum(np.diag(gram), 1e-300)
-    if side is None:
-        x0 = np.linalg.lstsq(a, b, rcond=None)[0]
-        side = np.where(x0 > high, 1.0, np.where(x0 < low, -1.0, 0.0))
-    x, grad = _active_set(gram[None], h[None], diag[None], side[None].astype(float), low, high)
-    scale = KKT_TOL * (np.abs(h).max(initial=0.0) + np.abs(gram).max(initial=0.0)
-                       * np.abs(np.where(np.isfinite(x[0]), x[0], 0.0)).max(initial=1.0))
-    if _kkt(x, grad, low, high, scale)[0]:
-        x = x[0]
-    else:
+    n = len(h)
+    if n == 1 and gram[0, 0] > 0:  # one coefficient: the unbounded one, clipped
+        x = np.clip(h / gram[0], low, high)
+        return x, np.where(x >= high, 1.0, np.where(x <= low, -1.0, 0.0))
+    side = np.zeros(n) if side is None else side
+    ridge = 1e-14 * np.abs(gram).max(initial=0.0) * np.eye(n)  # collinear columns
+    x = grad = None
+    for _ in range(8):
+        free = side == 0
+        x = np.where(side > 0, high, np.where(side < 0, low, 0.0))
+        try:
+            if free.all():
+                x = np.linalg.solve(gram + ridge, h)
+            elif free.any():
+                x[free] = np.linalg.solve((gram + ridge)[np.ix_(free, free)],
+                                          h[free] - gram[np.ix_(free, ~free)] @ x[~free])
+        except np.linalg.LinAlgError:
+            x = None
+            break
+        grad = gram @ x - h
+        trial = np.where(free, x, x - grad / np.maximum(np.diag(gram), 1e-300))
+        new = np.where(trial > high, 1.0, np.where(trial < low, -1.0, 0.0))
+        if np.array_equal(new, side):
+            break
+        side = new
+    if x is None or not _kkt(x[None], grad[None], low, high, KKT_TOL * (
+            np.abs(h).max(initial=0.0) + np.abs(gram).max(initial=0.0)
+            * np.abs(x).max(initial=1.0)))[0]:
         x = lsq_linear(a, b, bounds=(low, high), method="bvls").x
     return x, np.where(x >= high, 1.0, np.where(x <= low, -1.0, 0.0))
 
