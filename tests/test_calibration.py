@@ -4,6 +4,7 @@ logs, windowed tuning, bad input and the command line."""
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -157,6 +158,36 @@ def test_upper_bound_strategy_changes_work_not_results(tmp_path, bus12, model):
     np.testing.assert_allclose(a.x, b.x)
     assert a.cost == pytest.approx(b.cost, rel=1e-12)
     assert with_ubs.simulated_steps < 0.9 * without.simulated_steps
+
+
+@pytest.mark.slow
+def test_a_batch_runs_in_lanes_only_once_their_loop_is_compiled(tmp_path, bus12, monkeypatch):
+    """On an empty kernel cache a calibration's batches run one by one (a lane loop would cost
+    more to compile than it saves); once another process has compiled the lane loop into the
+    cache, a new model uses it, and the costs are the same to the last bit."""
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("EBUS_CACHE_DIR", str(tmp_path / "cache"))
+    model = bus12.build()
+    frame = synthetic_log(model, twin_day(bus12, 0.5), TRUTH, soc_start=0.95)
+    profiles = load_log(write_log(tmp_path, frame)).profiles
+    free = ["static_rcd.rcd_frac", "grid_charger.power_kw"]
+    u = np.random.default_rng(0).random((30, 2))
+    problem = CalibrationProblem(model, profiles, free=free)
+    one_by_one = problem.cost(u)
+    assert not model._lane_kernels and not model.lanes_ready(problem.params(u))
+    compile_lanes = (  # the same model, its lane loop for batches that differ in ``free``
+        "import numpy as np; from ebus_env.config import load_bus; m = load_bus('12m').build(); "
+        f"rows = np.repeat(m.params[None], 30, 0); j = [m.param_index(n) for n in {free!r}]; "
+        "rows[:, j] += np.linspace(0.0, 0.01, 30)[:, None]; "
+        "m.compile(sample=True, lanes=True, params=rows)")
+    subprocess.run([sys.executable, "-c", compile_lanes], check=True, env=dict(os.environ))
+    fresh = bus12.build()
+    again = CalibrationProblem(fresh, profiles, free=free)
+    assert fresh.lanes_ready(again.params(u))
+    np.testing.assert_array_equal(again.cost(u), one_by_one)
+    assert fresh._lane_kernels  # it ran in lanes
 
 
 @pytest.mark.slow

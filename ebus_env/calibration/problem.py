@@ -59,6 +59,15 @@ def paper_params(model) -> list[str]:
 LOAD_LEVELS = (0.0, 0.5, 1.0)
 """The paper's passenger-load categories: driver only, half load, full load."""
 
+LANES_PAY_BUS_STEPS = 1e7
+"""Batches of at least this many bus-steps run in SIMD lanes even when their loop must be
+compiled first; smaller ones only when it is compiled already (in this process or the disk
+cache). A lane loop compiles in 7-12 s per model and set of free parameters and saves about
+10 ns per bus-step (docs/performance.md); a calibration runs some 20 such batches (polish,
+determinacy), so batches of 1e7 repay the compile within a few calibrations: a 13.5 h log at
+10 Hz (polish batches of ~2e7). A 1 Hz log's batches are ~5e6: on a first run their lanes
+cost more than they save (a 4 h day's `diagnose --calibrate`: 51 s with them, 40 s
+without; 13.5 h from a warm cache: 36 with, 37.5 s without)."""
 SOC_FLOOR_FRAC = 0.10
 
 
@@ -391,10 +400,12 @@ class CalibrationProblem:
                 d.anchor(a, states, self.soc_index)
                 in_chunk = (d.rows >= a) & (d.rows < b)
                 out = np.zeros((len(alive), int(in_chunk.sum()), 1), np.float32)
-                # a large population runs in SIMD lanes (its compile pays over the iterations)
+                # SIMD lanes where their loop is compiled already or the batch repays it
+                lanes = (len(alive) * (b - a) >= LANES_PAY_BUS_STEPS
+                         or self.model.lanes_ready(matrix[alive]))
                 self.model.run(matrix[alive], states, d.inputs, step0=np.full(len(alive), a),
                                n_steps=b - a, record_out=out, sample_mask=d.mask, acc=acc,
-                               lanes=True)
+                               lanes=lanes)
                 self.simulated_steps += len(alive) * (b - a)
                 sim = out[:, :, 0].astype(float)
                 err = sim - d.measured[in_chunk]

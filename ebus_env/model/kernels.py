@@ -93,6 +93,14 @@ def compile_lanes(comp: Composition, layout: Layout, varying):
                     layout.calls)
 
 
+def lanes_compiled(comp: Composition, layout: Layout, varying) -> bool:
+    """Whether the lane loops for ``varying`` are compiled already: imported in this process,
+    or ``run_sample_lanes`` in numba's disk cache (its index file) from an earlier one."""
+    name = f"ebus_kernel_{kernel_key(comp, lane_source(layout, varying))}"
+    return name in sys.modules or any(
+        (cache_dir() / "__pycache__").glob(f"{name}.run_sample_lanes-*.nbi"))
+
+
 def _compile(comp: Composition, source: str, names, calls):
     key = kernel_key(comp, source)
     with _LOCK:

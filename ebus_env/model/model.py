@@ -22,7 +22,7 @@ from ebus_env.effects.base import Effect, Param, get_effect
 from ebus_env.effects.compile_errors import explain
 from ebus_env.errors import CompositionError, ConfigError, EbusError, unknown_name
 from ebus_env.model.generate import Composition, generate
-from ebus_env.model.kernels import compile_kernel, compile_lanes, python_kernel
+from ebus_env.model.kernels import compile_kernel, compile_lanes, lanes_compiled, python_kernel
 from ebus_env.model.lanes import LANES_MIN
 from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.profile import Profile
@@ -54,6 +54,7 @@ class Model:
         self._check_in_bounds(self.params, "the model's configured value")
         self._kernel = None
         self._lane_kernels = {}  # varying parameter columns -> module of the lane loops
+        self._lanes_cached = {}  # varying parameter columns -> compiled in an earlier process
         self._python_kernel = None
 
     # -- description ------------------------------------------------------------------------
@@ -239,6 +240,17 @@ class Model:
         columns = differing_columns(params)
         ready = [c for c in self._lane_kernels if columns <= c]
         return min(ready, key=len) if ready else columns
+
+    def lanes_ready(self, params: np.ndarray) -> bool:
+        """Whether the lane loop a batch of ``params`` would run in is compiled already (in
+        this process, or in the disk cache by an earlier one): then lanes cost nothing to
+        start."""
+        columns = self.varying_columns(params)
+        if columns in self._lane_kernels:
+            return True
+        if columns not in self._lanes_cached:
+            self._lanes_cached[columns] = lanes_compiled(self.composition, self.layout, columns)
+        return self._lanes_cached[columns]
 
     def compile(self, record: bool = False, sample: bool = False, lanes: bool = False,
                 params: np.ndarray | None = None) -> float:
