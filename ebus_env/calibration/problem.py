@@ -60,14 +60,16 @@ LOAD_LEVELS = (0.0, 0.5, 1.0)
 """The paper's passenger-load categories: driver only, half load, full load."""
 
 LANES_PAY_BUS_STEPS = 1e7
-"""Batches of at least this many bus-steps run in SIMD lanes even when their loop must be
-compiled first; smaller ones only when it is compiled already (in this process or the disk
-cache). A lane loop compiles in 7-12 s per model and set of free parameters and saves about
-10 ns per bus-step (docs/performance.md); a calibration runs some 20 such batches (polish,
-determinacy), so batches of 1e7 repay the compile within a few calibrations: a 13.5 h log at
-10 Hz (polish batches of ~2e7). A 1 Hz log's batches are ~5e6: on a first run their lanes
-cost more than they save (a 4 h day's `diagnose --calibrate`: 51 s with them, 40 s
-without; 13.5 h from a warm cache: 36 with, 37.5 s without)."""
+"""A run of at least this many bus-steps (a batch of parameter sets over one chunk of a
+profile, an eighth of it by default) goes in SIMD lanes even when their loop must be
+compiled first; a smaller one only when the loop is compiled already (in this process or the
+disk cache). A lane loop compiles in 7-12 s per model and set of free parameters and saves
+about 10 ns per bus-step (docs/performance.md). The calibrations the library runs stay below
+it (a 13.5 h 10 Hz log's polish: ~3e6 per run), so they use lanes only from a cache that has
+them. Measured: on a first run a 4 h 1 Hz day's `diagnose --calibrate` took 51 s with lanes
+compiled for it, 40 s without; from a warm cache a 13.5 h 1 Hz diagnosis 36 s with lanes,
+37.5 s without, and the 13.5 h 10 Hz twin's calibration with polish 13.3 s with, 14.2 s
+without."""
 SOC_FLOOR_FRAC = 0.10
 
 
