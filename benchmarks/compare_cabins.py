@@ -5,7 +5,9 @@
 
 Per HVAC day: the HVAC energy the truth logged, and the energy of the library's cabin
 (``cabin_hvac`` at its configured values, added to the diagnosis's baseline bus, driven
-through the day's log) at the truth's envelope UA and at the lowest UA of its range. Where
+through the day's log) at the truth's UA in the library's terms (the library's envelope UA that,
+with its own fresh air and door air, loses the heat the truth's cabin loses over the day; "-"
+where that lies below the library's range) and at the lowest UA of its range. Where
 the library's cabin at its lowest UA still draws more than the truth's, the diagnosis can
 only answer "the shape fits, the strength is implausible": it is the cabin's other terms
 (fans, fresh air, occupants' heat, the heat pump's or air conditioner's COP) that differ.
@@ -81,9 +83,9 @@ def main(argv=None) -> None:
             model = bus.build(profiles[0].dt_s)
             low = model.bounds[model.param_index(UA)][0]
             ua = truth["strength"][UA]
+            at_ua = f"{cabin_kwh(model, profiles, {UA: ua}):14.1f}" if ua >= low else f"{'-':>14s}"
             row = (f"{source + '/' + case.case_id:34s} {truth['summary']['effect_kwh']:10.1f} "
-                   f"{ua:9.0f} {cabin_kwh(model, profiles, {UA: ua}):14.1f} "
-                   f"{cabin_kwh(model, profiles, {UA: low}):13.1f}")
+                   f"{ua:9.0f} {at_ua} {cabin_kwh(model, profiles, {UA: low}):13.1f}")
             if args.cop and source == "fastsim":
                 row += f" {fastsim_cop(case):5.2f}"
             print(row, flush=True)

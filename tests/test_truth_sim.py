@@ -250,6 +250,37 @@ def test_an_oracle_log_adds_the_hidden_effects_own_power_and_leaves_the_rest_unc
     assert oracle["logged_load_kw"].min() < 0.0 < oracle["logged_load_kw"].max()  # regen too
 
 
+def test_a_truths_cabin_is_the_library_ua_that_loses_the_same_heat_over_the_day():
+    """The cabin's strength in the library's terms: the UA at which the library's cabin, with
+    its own fresh air and door air, loses through walls, fresh air and open doors what the
+    truth's cabin loses over the day, sum over t of conductance(t) (T_cab - T_amb)(t)."""
+    from ebus_env.config import load_bus
+
+    model = load_bus("12m").build()
+    values = dict(zip(model.param_names, model.params, strict=True))
+    cp = truth_cases.AIR_CP_J_PER_KG_K
+    assert truth_cases.LIBRARY_FRESH_AIR_W_PER_K == pytest.approx(
+        values["cabin_hvac.fresh_air_kg_per_s"] * cp)
+    assert truth_cases.LIBRARY_DOOR_AIR_W_PER_K == pytest.approx(
+        1.2 * cp * values["cabin_hvac.door_air_m3_per_s"])
+    rng = np.random.default_rng(3)
+    trace = pd.DataFrame({"cabin_temp_degc": 19.0 + rng.normal(0.0, 0.5, 3000),
+                          "ambient_degc": rng.uniform(-8.0, 3.0, 3000),
+                          "door_open": (rng.random(3000) < 0.15).astype(int)})
+    ph = {"ua_w_per_k": 420.0, "fresh_air_kg_per_s": 0.33, "door_air_m3_per_s": 0.9}
+    ua = truth_cases._strength("cabin_heating", ph, trace)["cabin_hvac.ua_w_per_k"]
+    delta_k = (trace["cabin_temp_degc"] - trace["ambient_degc"]).to_numpy()
+    door = trace["door_open"].to_numpy()
+    truth_loss = np.sum((ph["ua_w_per_k"] + ph["fresh_air_kg_per_s"] * cp
+                         + AIR_DENSITY_KG_PER_M3 * cp * ph["door_air_m3_per_s"] * door) * delta_k)
+    library_loss = np.sum((ua + truth_cases.LIBRARY_FRESH_AIR_W_PER_K
+                           + truth_cases.LIBRARY_DOOR_AIR_W_PER_K * door) * delta_k)
+    assert library_loss == pytest.approx(truth_loss, rel=1e-12)
+    # less fresh air than the library's (0.4 kg/s) but more door air: the two partly cancel
+    assert ua == pytest.approx(420.0 - 0.07 * cp + 1.2 * cp * 0.2 * np.sum(door * delta_k)
+                               / np.sum(delta_k))
+
+
 def test_case_list_covers_every_effect_and_keeps_clock_bound_logs_stamped():
     listed = truth_cases.cases()
     by_effect = pd.Series([c.hidden or "control" for c in listed]).value_counts()

@@ -25,8 +25,8 @@ import pandas as pd
 
 from benchmarks.truth.days import _SEASONS, route_day
 from benchmarks.truth.degrade import degrade, effect_load_kw
-from benchmarks.truth.sim import HIDDEN, simulate
-from benchmarks.truth.vehicles import draw_base
+from benchmarks.truth.sim import AIR_CP_J_PER_KG_K, HIDDEN, simulate
+from benchmarks.truth.vehicles import AIR_DENSITY_KG_PER_M3, draw_base
 
 SOURCE = "truthsim"
 MIN_SOC_FRAC = 0.10
@@ -53,6 +53,11 @@ MODES = ("accelerating", "cruising", "braking/regen", "idle", "CC charging", "CV
 # express the truth's lights as the library's ``scale`` parameter.
 LIBRARY_SCHEDULE_H = (0.0, 6.0, 7.0, 16.0, 17.0, 22.0, 23.0, 24.0)
 LIBRARY_SCHEDULE_W = (500.0, 500.0, 0.0, 0.0, 500.0, 500.0, 500.0, 500.0)
+# The library's 12 m cabin (``configs/bus/12m.yaml``): its fresh air (0.4 kg/s) and door air
+# (0.7 m^3/s while the doors are open) as conductances c_p m and rho c_p V [W/K], used only to
+# express a truth's cabin as the library's envelope ``ua_w_per_k``.
+LIBRARY_FRESH_AIR_W_PER_K = 0.4 * AIR_CP_J_PER_KG_K
+LIBRARY_DOOR_AIR_W_PER_K = 1.2 * AIR_CP_J_PER_KG_K * 0.7
 
 
 @dataclass(frozen=True)
@@ -160,12 +165,30 @@ def modes(trace: pd.DataFrame) -> np.ndarray:
     return mode
 
 
+def door_weight(trace: pd.DataFrame) -> float:
+    """Share of the day's cabin-to-ambient temperature difference the doors stood open for,
+    sum(door dT) / sum(dT), dT = T_cab - T_amb: a door's air exchange over the day is that
+    share times its conductance."""
+    delta_k = (trace["cabin_temp_degc"] - trace["ambient_degc"]).to_numpy()
+    return float(np.sum(trace["door_open"].to_numpy() * delta_k) / np.sum(delta_k))
+
+
+def library_ua(conductance_w_per_k: float, door: float) -> float:
+    """The library's envelope UA whose cabin loses heat as a truth's does over the day: a SoC
+    log shows the heat-loss conductance as a whole (walls, fresh air and open doors), not how
+    it splits, so the library's UA takes up the difference of the other two terms.
+    ``conductance_w_per_k``: the truth's, averaged over the day like :func:`door_weight`."""
+    return conductance_w_per_k - LIBRARY_FRESH_AIR_W_PER_K - LIBRARY_DOOR_AIR_W_PER_K * door
+
+
 def _strength(hidden: str | None, ph: dict, trace: pd.DataFrame) -> dict:
     """The truth expressed in the library's parameters, where it has an equivalent."""
     if hidden in ("cabin_heating", "cabin_cooling"):
-        # the same quantity: envelope conductance (the library adds its own fresh-air and door
-        # terms; the truth's are in ``physical``)
-        return {"cabin_hvac.ua_w_per_k": ph["ua_w_per_k"]}
+        door = door_weight(trace)
+        conductance = (ph["ua_w_per_k"] + ph["fresh_air_kg_per_s"] * AIR_CP_J_PER_KG_K
+                       + AIR_DENSITY_KG_PER_M3 * AIR_CP_J_PER_KG_K * ph["door_air_m3_per_s"]
+                       * door)
+        return {"cabin_hvac.ua_w_per_k": library_ua(conductance, door)}
     if hidden == "regen_soc_limit":
         # both start derating at this SoC and reach zero at 100 %; the truth derates the
         # charge current from the motor's regen current, the library the regenerative force

@@ -440,12 +440,11 @@ def _strength(hidden: str | None, effect: dict, clean: pd.DataFrame) -> dict:
     """The truth in the library's parameters, where it has an equivalent."""
     if hidden in HVAC_EFFECTS:
         # FASTSim's conductance over the day, measured from its own history,
-        # G = -sum(Q_from_ambient) / sum(T_cab - T_amb), carries envelope and fresh air in the
-        # ratio they were scaled in; the library's UA is the envelope's share of it
+        # G = -sum(Q_from_ambient) / sum(T_cab - T_amb): envelope and fresh air together, no
+        # doors; the library's UA is what is left of it after the library's fresh and door air
         delta_k = clean["cabin_temp_degc"] - clean["ambient_degc"]
         measured = float(-clean["cabin_from_ambient_w"].sum() / delta_k.sum())
-        share = effect["ua_w_per_k"] / (effect["conductance_scale"] * FASTSIM_CABIN_W_PER_K)
-        return {"cabin_hvac.ua_w_per_k": measured * share}
+        return {"cabin_hvac.ua_w_per_k": truthsim.library_ua(measured, truthsim.door_weight(clean))}
     return truthsim._strength(hidden, effect, clean)
 
 
