@@ -253,6 +253,24 @@ def test_control_day_supports_no_missing_effect():
     assert d.nrmse["before"]["held_out"] < 0.01 and "after" not in d.nrmse
 
 
+def test_passenger_mass_without_passenger_counts_is_a_heavier_bus_not_a_candidate(tmp_path):
+    """A bus that assumes a constant passenger load, diagnosed without its passenger mass: on a
+    log without counts the passenger mass is a constant mass, what the curb mass already is,
+    and is set aside with the reason; with counts that vary it is a candidate again."""
+    bus = load_bus("12m", without=["passenger_mass"])
+    frame = pd.read_csv(hidden.OUT_DIR / "control.csv.gz").iloc[:3 * 3600]  # 3 h at 1 Hz
+    frame.to_csv(tmp_path / "uncounted.csv", index=False)
+    d = diagnose(bus, load_log(tmp_path / "uncounted.csv").profiles)
+    aside = {a["effect"]: a["why"] for a in d.set_aside}
+    assert "passenger_mass" in aside and "curb mass" in aside["passenger_mass"], d.set_aside
+    assert "passenger_mass" not in [r["effect"] for r in d.ranking]
+    frame["passengers"] = (20 + 15 * np.sin(np.arange(len(frame)) / 1800.0)).round()
+    frame.to_csv(tmp_path / "counted.csv", index=False)
+    d = diagnose(bus, load_log(tmp_path / "counted.csv").profiles)
+    assert "passenger_mass" not in {a["effect"] for a in d.set_aside}
+    assert "passenger_mass" in [r["effect"] for r in d.ranking]
+
+
 def test_a_log_too_short_to_attribute_says_so_and_names_nothing(tmp_path):
     """The first 45 min of the cabin-heating day (a heater named on the whole day) hold
     8 five-minute windows: too few to deal into folds and bootstrap blocks, so no verdict,

@@ -11,7 +11,10 @@
   moves by +10 % of its range (all in one batched run).
 
 A candidate that changes nothing along this trip (its inputs are not in the log, say) is set
-aside with the reason.
+aside with the reason; so is a stateless effect whose every driver holds one value along the
+log (passenger mass where the log has no passenger counts and the bus assumes a constant
+load): it adds a constant to its sink, a heavier bus or a larger base load, which is a
+parameter of the model, not a missing effect.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics.attribution import NUISANCE_STEPS
 from ebus_env.diagnostics.boxlsq import refit_sse
-from ebus_env.diagnostics.residual import window_power
+from ebus_env.diagnostics.residual import channel, window_power
 from ebus_env.effects.base import Effect, registered_effects
 from ebus_env.errors import EbusError
 from ebus_env.signals import SLOTS
@@ -31,6 +34,9 @@ from ebus_env.signals import SLOTS
 PARAM_STEP = 0.10  # of the range
 VISIBLE_W = 1.0  # a signature below this everywhere changes nothing here
 GRID = 9  # strength values across the range, besides the default
+SAME_AS = {"mass_kg": "a heavier bus (its curb mass)", "dc_load_w": "a larger auxiliary base load",
+           "road_force_n": "more rolling resistance"}
+"""The parameter that adds a constant to a sink, as a user knows it."""
 
 
 @dataclass
@@ -86,11 +92,33 @@ def strength_rows(model, params: np.ndarray, name: str | None, values) -> tuple[
     return rows, np.asarray(values, float)
 
 
+def constant_drivers(eff: Effect, runs) -> bool:
+    """Whether ``eff`` has no state and each of its drivers holds one value along the recorded
+    ``runs`` of the bus (a driver they do not record counts as varying)."""
+    if eff.states or not eff.drivers or not runs:
+        return False
+    for name in eff.drivers:
+        values = []
+        for r in runs:
+            if name in r.model.trace_names:
+                values.append(r.trace(name))
+            elif name in r.profile.channels:
+                values.append(channel(r, name))
+            else:
+                return False
+        v = np.concatenate(values)
+        v = v[np.isfinite(v)]
+        if v.size and np.ptp(v) > 0.0:
+            return False
+    return True
+
+
 def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windows, basis,
                       energy_j, base_power: np.ndarray, extra: tuple[Effect, ...] = (),
-                      progress=None):
+                      progress=None, runs=()):
     """Signatures of every built-in effect the bus lacks, and of the ``extra`` ones (a
-    user's); returns (candidates, set aside)."""
+    user's); returns (candidates, set aside). ``runs``: recorded runs of the bus along the
+    log, to set aside a built-in effect whose drivers they hold constant."""
     candidates, aside = [], []
     pool = {e.name: e for e in registered_effects().values() if e.builtin}
     pool.update({e.name: e for e in extra})
@@ -119,6 +147,12 @@ def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windo
         if np.max(np.abs(found.signatures_w)) < VISIBLE_W:
             aside.append({"effect": eff.name, "why": "changes nothing along this trip (are its "
                                                      "inputs in the log?)"})
+            continue
+        if eff.builtin and eff.sink is not None and constant_drivers(eff, runs):
+            aside.append({"effect": eff.name, "why": (
+                f"its inputs ({', '.join(eff.drivers)}) hold one value along this log, so it "
+                f"adds a constant {eff.sink}: {SAME_AS.get(eff.sink, 'a parameter of the bus')} "
+                "does the same; log them to test it")})
             continue
         candidates.append(found)
     return candidates, aside

@@ -353,7 +353,7 @@ def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say,
     values = {**res.values, **(held or {})}
     candidates, aside = effect_candidates(bus, dt_s, values, profiles, res.windows,
                                           res.basis, res.energy_j, res.base_power_w, user,
-                                          progress=lambda n: say(f"  {n}"))
+                                          progress=lambda n: say(f"  {n}"), runs=res.anchored)
     candidates += parameter_candidates(res.model, res.params, profiles, res.windows, res.basis,
                                        res.energy_j, res.base_power_w)
     return candidates, aside
