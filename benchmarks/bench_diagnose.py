@@ -530,8 +530,9 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   controls: int | None = None, current_voltage: bool = False,
                   rows_path: Path | None = None, oracle: bool = False,
                   reference: bool = False, effects: tuple[str, ...] = (),
-                  resume: bool = False, known_mass: bool = False) -> None:
+                  resume: bool = False, known_mass: bool = False, ladder: bool = True) -> None:
     from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
     from multiprocessing import get_context
 
     print("\nOut-of-family truth days (baseline: 12m --without " + ",".join(BASELINE_WITHOUT)
@@ -560,7 +561,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         jobs = [j for j in jobs if (j[0], j[1].case_id) not in done]
         print(f"  {len(done)} days from {rows_path}, {len(jobs)} to run")
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        for row in pool.map(diagnose_truth_day, jobs):
+        for row in pool.map(partial(diagnose_truth_day, ladder=ladder), jobs):
             rows.append(row)
             if rows_path is not None:  # every day so far, for analyses without a re-run
                 tmp = rows_path.with_name(rows_path.name + ".tmp")
@@ -665,6 +666,9 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true",
                         help="out of family: keep the days already in the --rows file and run "
                         "only the others (a bench stopped part-way)")
+    parser.add_argument("--no-ladder", action="store_true",
+                        help="out of family: verdicts and estimates only, without adding the "
+                        "right effect and re-calibrating (about half the time; no falls)")
     parser.add_argument("--from-rows", type=Path, action="append", default=[],
                         help="out of family: report the days of these --rows files, together "
                         "(repeatable), without running them; the first file's row of a day "
@@ -684,7 +688,7 @@ def main() -> None:
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
                       args.oracle, args.reference, tuple(args.effect), args.resume,
-                      args.known_curb_mass)
+                      args.known_curb_mass, not args.no_ladder)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

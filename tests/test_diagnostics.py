@@ -535,6 +535,65 @@ def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report
     assert at_bound > 5 * cabin_kwh(hidden.true_bus(frugal), {})
 
 
+def _at_lower_bound(monkeypatch, effect: str) -> None:
+    """Make the attribution end as where the calibrated parameters, moving back one step,
+    leave too little to fit: ``effect``'s strength at its lower bound, the verdict withdrawn."""
+    import importlib
+    from dataclasses import replace
+
+    from ebus_env.diagnostics.candidates import energy_curve
+
+    stages = importlib.import_module("ebus_env.diagnostics.diagnose")
+    attribute = getattr(stages.attribution_stage, "__wrapped__", stages.attribution_stage)
+
+    def at_bound(res, candidates, *args):
+        c = next(c for c in candidates if c.name == effect)
+        name = c.strength_param
+        low = c.model.bounds[c.model.param_index(name)][0]
+        curve = energy_curve(c.strengths, c.signatures_w, res.windows)
+        strength = Strength({name: low}, {name: (low, low)}, True, float(np.interp(low, *curve)),
+                            (float(np.interp(low, *curve)),) * 2, curve)
+        return replace(attribute(res, candidates, *args), verdict=None, status="implausible",
+                       at_bound=effect, strength=strength, why="at its bound")
+
+    at_bound.__wrapped__ = attribute
+    monkeypatch.setattr(stages, "attribution_stage", at_bound)
+
+
+def test_a_strength_at_its_bound_is_settled_by_re_calibrating_the_bus_with_the_effect(
+        monkeypatch, tmp_path):
+    """Where the attribution leaves a strength at a bound, the bus re-calibrated with the
+    effect decides: on 4 h of the cabin-heating day (truth UA 450 W/K) it ends near the truth,
+    the error falls and the cabin is named, its interval reaching from the bound to that value;
+    on 3 h of the control day a pack warmer than the air raises the held-out error, a
+    time-of-day load ends at its bound again, and nothing is named."""
+    from ebus_env.calibration import ISOPTSettings
+
+    def first_hours(name, hours):
+        frame = pd.read_csv(hidden.OUT_DIR / f"{name}.csv.gz").iloc[:hours * 3600]  # 1 Hz
+        frame.to_csv(tmp_path / f"{name}.csv", index=False)
+        return load_log(tmp_path / f"{name}.csv").profiles
+
+    quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
+    _at_lower_bound(monkeypatch, "cabin_hvac")
+    case = hidden.case("cabin_heating")
+    d = diagnose(hidden.baseline_bus(case), first_hours("cabin_heating", 4), **quick)
+    assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
+    (ua,) = d.named["parameters"].values()
+    (low, high), = d.named["interval"].values()
+    assert ua == pytest.approx(case.truth["cabin_hvac.ua_w_per_k"], rel=0.25)
+    assert (low, high) == (10.0, ua) and d.after_runs
+    assert d.nrmse["after"]["held_out"] < d.nrmse["before"]["held_out"]
+    assert f"the bus ends at {ua:.4g}, inside the range" in d.sentence
+
+    control = first_hours("control", 3)
+    for effect in ("ambient_battery", "aux_schedule"):  # neither is in the day
+        _at_lower_bound(monkeypatch, effect)
+        d = diagnose(hidden.baseline_bus(hidden.case("control")), control, **quick)
+        assert d.verdict is None and d.status == "implausible"
+        assert f"re-calibrated with {effect}, every parameter free, the bus ends at" in d.why
+
+
 def test_html_report_renders_in_headless_chromium(cabin_report):
     _, folder = cabin_report
     browser = shutil.which("chromium") or shutil.which("chromium-browser")

@@ -19,6 +19,7 @@ from ebus_env.calibration.problem import logs_current
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics import attribution, clues, deciding, quality, residual
 from ebus_env.diagnostics.candidates import (
+    AT_BOUND,
     Strength,
     effect_candidates,
     energy_curve,
@@ -72,7 +73,8 @@ class Diagnosis:
     to_decide: str  # what to log where the log leaves the question open, or ""
     significance: float  # of the missing power above noise, in standard deviations
     status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter",
-    # "implausible", "voltage" (named from the resistance the logged voltage shows)
+    # "implausible", "voltage" (named from the resistance the logged voltage shows),
+    # "re-calibrated" (named at the strength the bus re-calibrated with the effect ends at)
     mode_clue: str | None  # the operating mode where the power is missing
     ranking: list[dict]
     parameters: list[dict]
@@ -239,7 +241,8 @@ def _sentence(found, by_name, model) -> str:
     top = next(a for a in found.ranking if a["effect"] == verdict)
     eff = by_name[verdict].effect
     title = eff.title[:1].upper() + eff.title[1:]
-    text = (f"{title} ({verdict}): {found.why}" if found.status == "voltage" else
+    text = (f"{title} ({verdict}): {found.why}" if found.status in ("voltage", "re-calibrated")
+            else
             f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
             "of the missing battery power on held-out windows")
 
@@ -378,6 +381,8 @@ class Attributed:
     worst: list[dict]
     status: str  # see attribution.Decision, or "implausible"
     clue: str | None  # the operating mode where the power is missing
+    at_bound: str | None = None  # the effect whose strength the fit put at a bound
+    refit: Rung | None = None  # the bus re-calibrated with the verdict's effect, where done
 
     @property
     def estimate(self) -> dict:
@@ -402,6 +407,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     fit on the held-out blocks'), and where the power is missing. A verdict whose strength sits
     at a bound of its parameter is withdrawn: the shape fits, the strength is implausible."""
     w = res.windows
+    at_bound = None
     decision = attribution.attribute(res.missing_w, res.noise_w, candidates, res.usable,
                                      nuisance=nuisance, measurement_w=res.measurement_w)
     ranked, verdict, why, status = (decision.ranking, decision.verdict, decision.why,
@@ -438,7 +444,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                    f"its {side} bound, {value:.4g} (range {low:.4g} to {high:.4g}), where it adds "
                    f"{strength.energy_kwh:.3g} kWh over the log (its other parameters, or its "
                    "form, differ from this bus's)")
-            status, verdict = "implausible", None
+            status, verdict, at_bound = "implausible", None, verdict
         elif own.least_energy_kwh() < (floor_kwh := res.resolution_kwh()):
             # the fit's strength, or one inside its interval on the windows it was fitted on,
             # adds less energy than the log can show at all: the shape matched noise, not an
@@ -484,7 +490,7 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
     worst = _worst(res.anchored, w, res.missing_w, res.noise_w, res.usable)
     return Attributed(ranked, decision.selected, verdict, why, decision.significance,
                       strength, verdict_w, ranking, parameters, found, modes, bins, worst,
-                      status, clue)
+                      status, clue, at_bound)
 
 
 @dataclass
@@ -508,6 +514,70 @@ def _errors(cal: dict, held: dict) -> dict:
     return out
 
 
+def _ranked_with(ranking: list[dict], verdict: str, strength: Strength) -> list[dict]:
+    """The ranking with the verdict's row carrying ``strength``: its value, interval and
+    energy."""
+    return [{**r, "parameters": strength.value, "interval": strength.interval,
+             "energy_kwh": strength.energy_kwh,
+             "energy_interval_kwh": list(strength.energy_interval_kwh)}
+            if r["effect"] == verdict else r for r in ranking]
+
+
+def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, blocks,
+                first_rung: Rung | None, settings, freedom: Freedom | None, say) -> Attributed:
+    """A verdict withdrawn because its strength ends at a bound, settled by re-calibrating
+    the bus with the effect.
+
+    The attribution lets the calibrated parameters move back by one step of their linear
+    signatures (:data:`~ebus_env.diagnostics.attribution.NUISANCE_STEPS`). Where they had
+    taken up much of the effect (a cabin's steady load in the auxiliary base load, its
+    losses in the pack's resistance), that is too little: the strength left to fit lands
+    at a bound. The bus re-calibrated with the effect (every parameter free together and
+    the model run in full; a local search from the calibrated values, the effect's strength
+    scanned across its range first) decides. Where its strength ends inside the range,
+    away from both bounds, adds more energy than the log resolves and lowers the held-out
+    NRMSE, the effect is named at that strength, its interval reaching back to the
+    attribution's. Otherwise the verdict stays withdrawn, and the reason says where the
+    re-calibration ended."""
+    if found.at_bound is None or first_rung is None:
+        return found
+    c = by_name[found.at_bound]
+    name = c.strength_param
+    if name in (freedom or Freedom()).fixed:  # a strength a user knows is not re-fitted
+        return found
+    say(f"re-calibrating with {c.name}")
+    local = replace(settings or ISOPTSettings(), iterations=0)
+    rung = calibrate_rung(c.bus, [c.effect], profiles, *blocks, profiles[0].dt_s, local, 1,
+                          f"+ {c.name}", start=first_rung.values, model=c.model,
+                          freedom=freedom)
+    value = float(rung.values[name])
+    low, high = c.model.bounds[c.model.param_index(name)]
+    before, after = first_rung.held_out["nrmse"], rung.held_out["nrmse"]
+    curve = found.strength.energy_curve
+    energy_kwh = float(np.interp(value, *curve)) if curve else float("nan")
+    inside = low + AT_BOUND * (high - low) < value < high - AT_BOUND * (high - low)
+    if not (inside and after < before and abs(energy_kwh) >= res.resolution_kwh()):
+        ends = ("at a bound too" if not inside else
+                f"where it adds {energy_kwh:.2g} kWh, less than the log resolves"
+                if after < before else
+                f"and the held-out NRMSE rises from {before:.3g} to {after:.3g}")
+        why = (f"{found.why}; re-calibrated with {c.name}, every parameter free, the bus ends "
+               f"at {name} = {value:.4g}, {ends}")
+        return replace(found, why=why)
+    bound = next(iter(found.strength.value.values()))
+    strength = replace(found.strength, value={name: value}, at_bound=False,
+                       energy_kwh=energy_kwh).taking_in_value(value)
+    explained = next(a for a in found.ranked if a.name == c.name)
+    why = (f"it explains {100 * explained.explained:.0f} % of the missing battery power on "
+           f"held-out windows at a strength the attribution puts at a bound ({name} = "
+           f"{bound:.4g}, the calibrated parameters moving back one step); re-calibrated with "
+           f"it, every parameter free, the bus ends at {value:.4g}, inside the range, and the "
+           f"held-out NRMSE falls from {before:.3g} to {after:.3g}")
+    return replace(found, verdict=c.name, why=why, strength=strength, verdict_w=explained.fit_w,
+                   ranking=_ranked_with(found.ranking, c.name, strength),
+                   status="re-calibrated", refit=rung)
+
+
 def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attributed:
     """On a log whose voltage shows the pack's resistance changing, the effect that reproduces
     the change (:func:`~ebus_env.diagnostics.voltage.explain_change`) becomes the verdict
@@ -524,12 +594,9 @@ def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attribute
     why = (f"the missing power alone named no effect ({found.why}); the logged voltage shows "
            f"the pack's resistance changing over the log, and {best.effect} reproduces "
            f"{100 * best.explained:.0f} % of the change")
-    ranking = [{**r, "parameters": strength.value, "interval": strength.interval,
-                "energy_kwh": strength.energy_kwh,
-                "energy_interval_kwh": list(strength.energy_interval_kwh)}
-               if r["effect"] == best.effect else r for r in found.ranking]
     return replace(found, verdict=best.effect, why=why, strength=strength,
-                   verdict_w=c.signatures_w[best.index], ranking=ranking, status="voltage")
+                   verdict_w=c.signatures_w[best.index],
+                   ranking=_ranked_with(found.ranking, best.effect, strength), status="voltage")
 
 
 def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_name: dict,
@@ -564,11 +631,14 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
         nrmse["after_is"] = f"+ {verdict} at its estimated strength (fitted on calibration blocks)"
         if first_rung is not None:
             # the calibrated parameters absorbed part of the effect: re-fit them with it
-            say(f"re-fitting with {verdict}")
-            local = replace(settings or ISOPTSettings(), iterations=0)
-            rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
-                                  1, f"+ {verdict}", start=after_values, model=best.model,
-                                  freedom=freedom)
+            # (done already where the strength was settled so, bound_stage)
+            rung = found.refit
+            if rung is None:
+                say(f"re-fitting with {verdict}")
+                local = replace(settings or ISOPTSettings(), iterations=0)
+                rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
+                                      1, f"+ {verdict}", start=after_values, model=best.model,
+                                      freedom=freedom)
             after_values = rung.values
             nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
     if first_rung is not None and not ladder:
@@ -591,10 +661,8 @@ def with_refit(found: Attributed, after_values: dict) -> Attributed:
     if found.verdict is None or name not in after_values:
         return found
     strength = strength.taking_in_value(float(after_values[name]))
-    ranking = [{**r, "interval": strength.interval,
-                "energy_interval_kwh": list(strength.energy_interval_kwh)}
-               if r["effect"] == found.verdict else r for r in found.ranking]
-    return replace(found, strength=strength, ranking=ranking)
+    return replace(found, strength=strength,
+                   ranking=_ranked_with(found.ranking, found.verdict, strength))
 
 
 def reference_stage(bus: BusConfig, profiles, window_s, settings, polish_starts,
@@ -669,8 +737,10 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
 
     t1 = time.perf_counter()
     nuisance = tuple(first_rung.calibration_result.free) if first_rung else ()
-    found = voltage_stage(attribution_stage(res, candidates, nuisance, blocks, profiles),
-                          check, by_name, res.windows)
+    found = attribution_stage(res, candidates, nuisance, blocks, profiles)
+    found = bound_stage(found, res, by_name, profiles, blocks, first_rung, settings, freedom,
+                        say)
+    found = voltage_stage(found, check, by_name, res.windows)
     verdict = found.verdict
     timings["attribution_s"] = time.perf_counter() - t1
 
