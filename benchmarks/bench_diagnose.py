@@ -460,7 +460,8 @@ def figures(rows) -> dict:
         "control_end_params": Counter(f"{n.split('.')[-1]} {side}" for r in control
                                       for n, side in r.get("range_ends", {}).items())
         .most_common(),
-        "fall": {k: float(np.nanmedian(v)) for k, v in falls.items()},
+        # (no fall where the ladder was not run, --no-ladder)
+        "fall": {k: float(np.nanmedian(v)) for k, v in falls.items() if np.isfinite(v).any()},
         "fall_charge": {k: float(np.nanmedian(v)) for k, v in falls_charge.items()},
         "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
                            <= BARS["strength"]], shared),
