@@ -523,6 +523,17 @@ def _ranked_with(ranking: list[dict], verdict: str, strength: Strength) -> list[
             if r["effect"] == verdict else r for r in ranking]
 
 
+def refit_with(candidate, profiles, blocks, settings, start: dict,
+               freedom: Freedom | None) -> Rung:
+    """The bus re-calibrated with ``candidate``'s effect: a local search (no iSOPT iterations)
+    from ``start``, the effect's strength scanned across its range first, every parameter the
+    calibration frees (and the strength) free together, the model run in full."""
+    local = replace(settings or ISOPTSettings(), iterations=0)
+    return calibrate_rung(candidate.bus, [candidate.effect], profiles, *blocks,
+                          profiles[0].dt_s, local, 1, f"+ {candidate.name}", start=start,
+                          model=candidate.model, freedom=freedom)
+
+
 def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, blocks,
                 first_rung: Rung | None, settings, freedom: Freedom | None, say) -> Attributed:
     """A verdict withdrawn because its strength ends at a bound, settled by re-calibrating
@@ -546,10 +557,7 @@ def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, block
     if name in (freedom or Freedom()).fixed:  # a strength a user knows is not re-fitted
         return found
     say(f"re-calibrating with {c.name}")
-    local = replace(settings or ISOPTSettings(), iterations=0)
-    rung = calibrate_rung(c.bus, [c.effect], profiles, *blocks, profiles[0].dt_s, local, 1,
-                          f"+ {c.name}", start=first_rung.values, model=c.model,
-                          freedom=freedom)
+    rung = refit_with(c, profiles, blocks, settings, first_rung.values, freedom)
     value = float(rung.values[name])
     low, high = c.model.bounds[c.model.param_index(name)]
     before, after = first_rung.held_out["nrmse"], rung.held_out["nrmse"]
@@ -635,10 +643,7 @@ def ladder_stage(bus: BusConfig, res: Residual, profiles, found: Attributed, by_
             rung = found.refit
             if rung is None:
                 say(f"re-fitting with {verdict}")
-                local = replace(settings or ISOPTSettings(), iterations=0)
-                rung = calibrate_rung(best.bus, [best.effect], profiles, *blocks, dt_s, local,
-                                      1, f"+ {verdict}", start=after_values, model=best.model,
-                                      freedom=freedom)
+                rung = refit_with(best, profiles, blocks, settings, after_values, freedom)
             after_values = rung.values
             nrmse["after_is"] += ", the parameters then re-fitted locally (Levenberg-Marquardt)"
     if first_rung is not None and not ladder:
