@@ -535,29 +535,58 @@ def test_a_cabin_far_more_frugal_than_the_librarys_is_implausible_and_the_report
     assert at_bound > 5 * cabin_kwh(hidden.true_bus(frugal), {})
 
 
-def _at_lower_bound(monkeypatch, effect: str) -> None:
-    """Make the attribution end as where the calibrated parameters, moving back one step,
-    leave too little to fit: ``effect``'s strength at its lower bound, the verdict withdrawn."""
-    import importlib
-    from dataclasses import replace
+def _first_hours(folder, name: str, hours: int):
+    """The first ``hours`` of a hidden-effect day (1 Hz), as profiles."""
+    frame = pd.read_csv(hidden.OUT_DIR / f"{name}.csv.gz").iloc[:hours * 3600]
+    frame.to_csv(folder / f"{name}.csv", index=False)
+    return load_log(folder / f"{name}.csv").profiles
 
-    from ebus_env.diagnostics.candidates import energy_curve
+
+def _attribution_ends(monkeypatch, change) -> None:
+    """Make the attribution stage end as ``change(res, candidates, found)`` says."""
+    import importlib
 
     stages = importlib.import_module("ebus_env.diagnostics.diagnose")
     attribute = getattr(stages.attribution_stage, "__wrapped__", stages.attribution_stage)
 
-    def at_bound(res, candidates, *args):
+    def changed(res, candidates, *args):
+        return change(res, candidates, attribute(res, candidates, *args))
+
+    changed.__wrapped__ = attribute
+    monkeypatch.setattr(stages, "attribution_stage", changed)
+
+
+def _at_lower_bound(monkeypatch, effect: str) -> None:
+    """Make the attribution end as where the calibrated parameters, moving back one step,
+    leave too little to fit: ``effect``'s strength at its lower bound, the verdict withdrawn."""
+    from dataclasses import replace
+
+    from ebus_env.diagnostics.candidates import energy_curve
+
+    def at_bound(res, candidates, found):
         c = next(c for c in candidates if c.name == effect)
         name = c.strength_param
         low = c.model.bounds[c.model.param_index(name)][0]
         curve = energy_curve(c.strengths, c.signatures_w, res.windows)
         strength = Strength({name: low}, {name: (low, low)}, True, float(np.interp(low, *curve)),
                             (float(np.interp(low, *curve)),) * 2, curve)
-        return replace(attribute(res, candidates, *args), verdict=None, status="implausible",
-                       at_bound=effect, strength=strength, why="at its bound")
+        return replace(found, verdict=None, status="implausible", at_bound=effect,
+                       strength=strength, why="at its bound")
 
-    at_bound.__wrapped__ = attribute
-    monkeypatch.setattr(stages, "attribution_stage", at_bound)
+    _attribution_ends(monkeypatch, at_bound)
+
+
+def _tied(monkeypatch, first: str, second: str) -> None:
+    """Make the attribution end in a tie of ``first`` and ``second``, ranked in that order."""
+    from dataclasses import replace
+
+    def tie(res, candidates, found):
+        pair = [next(r for r in found.ranking if r["effect"] == n) for n in (first, second)]
+        rest = [r for r in found.ranking if r["effect"] not in (first, second)]
+        return replace(found, verdict=None, status="tie", ranking=pair + rest,
+                       strength=Strength({}, {}), verdict_w=None, why="a tie")
+
+    _attribution_ends(monkeypatch, tie)
 
 
 def test_a_strength_at_its_bound_is_settled_by_re_calibrating_the_bus_with_the_effect(
@@ -569,15 +598,10 @@ def test_a_strength_at_its_bound_is_settled_by_re_calibrating_the_bus_with_the_e
     again, and nothing is named."""
     from ebus_env.calibration import ISOPTSettings
 
-    def first_hours(name, hours):
-        frame = pd.read_csv(hidden.OUT_DIR / f"{name}.csv.gz").iloc[:hours * 3600]  # 1 Hz
-        frame.to_csv(tmp_path / f"{name}.csv", index=False)
-        return load_log(tmp_path / f"{name}.csv").profiles
-
     quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
     _at_lower_bound(monkeypatch, "cabin_hvac")
     case = hidden.case("cabin_heating")
-    d = diagnose(hidden.baseline_bus(case), first_hours("cabin_heating", 4), **quick)
+    d = diagnose(hidden.baseline_bus(case), _first_hours(tmp_path, "cabin_heating", 4), **quick)
     assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
     (ua,) = d.named["parameters"].values()
     (low, high), = d.named["interval"].values()
@@ -587,10 +611,40 @@ def test_a_strength_at_its_bound_is_settled_by_re_calibrating_the_bus_with_the_e
     assert f"the bus ends at {ua:.4g}, inside the range" in d.sentence
 
     _at_lower_bound(monkeypatch, "aux_schedule")  # not in the day
-    d = diagnose(hidden.baseline_bus(hidden.case("control")), first_hours("control", 3), **quick)
+    d = diagnose(hidden.baseline_bus(hidden.case("control")), _first_hours(tmp_path, "control", 3), **quick)
     assert d.verdict is None and d.status == "implausible"
     assert "re-calibrated with aux_schedule, every parameter free, the bus ends at " \
         "aux_schedule.scale = 0, at a bound too" in d.why
+
+
+def test_a_tie_is_broken_by_re_calibrating_the_bus_with_each_effect(monkeypatch, tmp_path):
+    """Where the attribution cannot tell two effects apart, the bus is re-calibrated with
+    each: on 4 h of the cabin-heating day (truth UA 450 W/K) a regen limit adds less energy
+    than the log resolves, the cabin ends inside its range and predicts the held-out blocks
+    better, and is named, its interval taking in the re-calibrated value; on 3 h of the
+    control day neither effect is a verdict once re-calibrated, and the tie stands."""
+    from ebus_env.calibration import ISOPTSettings
+
+    quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
+    _tied(monkeypatch, "regen_soc_limit", "cabin_hvac")
+    case = hidden.case("cabin_heating")
+    d = diagnose(hidden.baseline_bus(case), _first_hours(tmp_path, "cabin_heating", 4), **quick)
+    assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
+    (ua,) = d.named["parameters"].values()
+    (low, high), = d.named["interval"].values()
+    assert ua == pytest.approx(case.truth["cabin_hvac.ua_w_per_k"], rel=0.25)
+    assert low <= ua <= high and d.after_runs
+    assert d.nrmse["after"]["held_out"] < d.nrmse["before"]["held_out"]
+    assert "predicts the held-out blocks best" in d.why
+    assert "with regen_soc_limit the bus ends at regen_soc_limit.derate_soc_pct" in d.why
+
+    _tied(monkeypatch, "regen_soc_limit", "aux_schedule")
+    d = diagnose(hidden.baseline_bus(hidden.case("control")),
+                 _first_hours(tmp_path, "control", 3), **quick)
+    assert d.verdict is None and d.status == "tie"
+    assert "re-calibrated with each, every parameter free: with regen_soc_limit the bus " \
+        "ends at" in d.why and "with aux_schedule the bus ends at aux_schedule.scale = 0, " \
+        "at a bound too" in d.why
 
 
 def test_html_report_renders_in_headless_chromium(cabin_report):

@@ -400,6 +400,30 @@ def mode_clue(modes: list[dict]) -> str | None:
     return max(shown, key=lambda m: m["missing_kwh"])["mode"]
 
 
+def attributed_strength(best, res: Residual, by_name: dict, nuisance: tuple[str, ...],
+                        blocks, profiles) -> tuple[Strength, Strength]:
+    """A candidate's strength with its bootstrap interval, the calibrated parameters moving
+    back along their linear signatures: fitted on the calibration blocks' windows and widened
+    to take in the same fit on the held-out blocks' (the first), and on the calibration
+    blocks' alone (the second: what the energy floor is judged on)."""
+    w = res.windows
+    weight = attribution.weights(res.noise_w)
+    moving = [by_name[n].signature_w for n in nuisance if n in by_name]
+    nuisance_w = np.column_stack(moving) if moving else None
+
+    def strength_on(windows):
+        return estimate_strength(best, profiles, w, res.basis, res.energy_j, res.base_power_w,
+                                 res.missing_w, weight, windows, nuisance_w,
+                                 attribution.block_draws(int(windows.sum())))
+
+    in_cal = windows_in(blocks[0], w)
+    strength = own = strength_on(res.usable & in_cal)
+    held = res.usable & ~in_cal
+    if held.sum() >= attribution.MIN_WINDOWS:  # enough to check the estimate on
+        strength = strength.taking_in(strength_on(held))
+    return strength, own
+
+
 def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], blocks,
                       profiles) -> Attributed:
     """Which candidate explains the missing power, the verdict and its strength with a
@@ -414,26 +438,13 @@ def attribution_stage(res: Residual, candidates, nuisance: tuple[str, ...], bloc
                                     decision.status)
     by_name = {c.name: c for c in candidates}
     weight = attribution.weights(res.noise_w)
-    in_cal = windows_in(blocks[0], w)
-    fit = res.usable & in_cal
     strength, verdict_w = Strength({}, {}), None
     # where the power is missing: beyond a normal day's gap, with a reference (the attribution
     # stays on the missing power itself: taking the gap off there named fewer effects right)
     modes, bins = _breakdowns(res.anchored, w, *res.beyond_normal(), res.usable)
     if verdict is not None:
         best = by_name[verdict]
-        moving = [by_name[n].signature_w for n in nuisance if n in by_name]
-        nuisance_w = np.column_stack(moving) if moving else None
-
-        def strength_on(windows):
-            return estimate_strength(best, profiles, w, res.basis, res.energy_j,
-                                     res.base_power_w, res.missing_w, weight, windows,
-                                     nuisance_w, attribution.block_draws(int(windows.sum())))
-
-        strength = own = strength_on(fit)
-        held = res.usable & ~in_cal
-        if held.sum() >= attribution.MIN_WINDOWS:  # enough to check the estimate on
-            strength = strength.taking_in(strength_on(held))
+        strength, own = attributed_strength(best, res, by_name, nuisance, blocks, profiles)
         if strength.at_bound:
             (name, value), = strength.value.items()
             low, high = best.model.bounds[best.model.param_index(name)]
@@ -534,6 +545,28 @@ def refit_with(candidate, profiles, blocks, settings, start: dict,
                           model=candidate.model, freedom=freedom)
 
 
+def refit_ends(c, rung: Rung, first_rung: Rung, res: Residual,
+               curve) -> tuple[float, float, str | None]:
+    """Where the bus re-calibrated with candidate ``c`` (:func:`refit_with`) ends: the
+    effect's strength, the energy it adds over the log there (``curve``:
+    :func:`~ebus_env.diagnostics.candidates.energy_curve`), and why that is no verdict; None
+    where it is one: the strength inside its range, away from both bounds (``AT_BOUND``),
+    more energy than the log resolves, and a held-out NRMSE below the calibrated bus's."""
+    name = c.strength_param
+    value = float(rung.values[name])
+    low, high = c.model.bounds[c.model.param_index(name)]
+    before, after = first_rung.held_out["nrmse"], rung.held_out["nrmse"]
+    energy_kwh = float(np.interp(value, *curve)) if len(curve) else float("nan")
+    inside = low + AT_BOUND * (high - low) < value < high - AT_BOUND * (high - low)
+    if inside and after < before and abs(energy_kwh) >= res.resolution_kwh():
+        return value, energy_kwh, None
+    ends = ("at a bound too" if not inside else
+            f"where it adds {energy_kwh:.2g} kWh, less than the log resolves"
+            if after < before else
+            f"and the held-out NRMSE rises from {before:.3g} to {after:.3g}")
+    return value, energy_kwh, f"the bus ends at {name} = {value:.4g}, {ends}"
+
+
 def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, blocks,
                 first_rung: Rung | None, settings, freedom: Freedom | None, say) -> Attributed:
     """A verdict withdrawn because its strength ends at a bound, settled by re-calibrating
@@ -545,11 +578,10 @@ def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, block
     losses in the pack's resistance), that is too little: the strength left to fit lands
     at a bound. The bus re-calibrated with the effect (every parameter free together and
     the model run in full; a local search from the calibrated values, the effect's strength
-    scanned across its range first) decides. Where its strength ends inside the range,
-    away from both bounds, adds more energy than the log resolves and lowers the held-out
-    NRMSE, the effect is named at that strength, its interval reaching back to the
-    attribution's. Otherwise the verdict stays withdrawn, and the reason says where the
-    re-calibration ended."""
+    scanned across its range first) decides (:func:`refit_ends`): where it is a verdict, the
+    effect is named at that strength, its interval reaching back to the attribution's.
+    Otherwise the verdict stays withdrawn, and the reason says where the re-calibration
+    ended."""
     if found.at_bound is None or first_rung is None:
         return found
     c = by_name[found.at_bound]
@@ -558,20 +590,11 @@ def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, block
         return found
     say(f"re-calibrating with {c.name}")
     rung = refit_with(c, profiles, blocks, settings, first_rung.values, freedom)
-    value = float(rung.values[name])
-    low, high = c.model.bounds[c.model.param_index(name)]
-    before, after = first_rung.held_out["nrmse"], rung.held_out["nrmse"]
-    curve = found.strength.energy_curve
-    energy_kwh = float(np.interp(value, *curve)) if curve else float("nan")
-    inside = low + AT_BOUND * (high - low) < value < high - AT_BOUND * (high - low)
-    if not (inside and after < before and abs(energy_kwh) >= res.resolution_kwh()):
-        ends = ("at a bound too" if not inside else
-                f"where it adds {energy_kwh:.2g} kWh, less than the log resolves"
-                if after < before else
-                f"and the held-out NRMSE rises from {before:.3g} to {after:.3g}")
-        why = (f"{found.why}; re-calibrated with {c.name}, every parameter free, the bus ends "
-               f"at {name} = {value:.4g}, {ends}")
-        return replace(found, why=why)
+    value, energy_kwh, not_so = refit_ends(c, rung, first_rung, res,
+                                           found.strength.energy_curve)
+    if not_so:
+        return replace(found, why=f"{found.why}; re-calibrated with {c.name}, every parameter "
+                                  f"free, {not_so}")
     bound = next(iter(found.strength.value.values()))
     strength = replace(found.strength, value={name: value}, at_bound=False,
                        energy_kwh=energy_kwh).taking_in_value(value)
@@ -580,10 +603,67 @@ def bound_stage(found: Attributed, res: Residual, by_name: dict, profiles, block
            f"held-out windows at a strength the attribution puts at a bound ({name} = "
            f"{bound:.4g}, the calibrated parameters moving back one step); re-calibrated with "
            f"it, every parameter free, the bus ends at {value:.4g}, inside the range, and the "
-           f"held-out NRMSE falls from {before:.3g} to {after:.3g}")
+           f"held-out NRMSE falls from {first_rung.held_out['nrmse']:.3g} to "
+           f"{rung.held_out['nrmse']:.3g}")
     return replace(found, verdict=c.name, why=why, strength=strength, verdict_w=explained.fit_w,
                    ranking=_ranked_with(found.ranking, c.name, strength),
                    status="re-calibrated", refit=rung)
+
+
+def tie_stage(found: Attributed, res: Residual, by_name: dict, nuisance: tuple[str, ...],
+              profiles, blocks, first_rung: Rung | None, settings, freedom: Freedom | None,
+              say) -> Attributed:
+    """Two effects the attribution cannot tell apart, told apart by re-calibrating the bus
+    with each in turn (:func:`refit_with`).
+
+    The attribution's windows see the effects' shapes, with the calibrated parameters moving
+    back one step; the re-calibration runs the model in full with every parameter free, so
+    a shape that fitted the windows only by an implausible strength, or by what the other
+    parameters had taken up, ends at a bound or lowers no error there. An effect is named
+    where it alone is a verdict by :func:`refit_ends` and the bus re-calibrated with it
+    also predicts the held-out blocks better than the bus re-calibrated with the other:
+    both conditions, since on the validation bench the first alone named a wrong effect
+    whose rival ended just inside the bound margin but fitted as well. A strength a user
+    holds is not re-fitted, and such a pair stays a tie."""
+    if found.status != "tie" or first_rung is None:
+        return found
+    pair = [by_name[r["effect"]] for r in found.ranking[:2]]
+    fixed = (freedom or Freedom()).fixed
+    if len(pair) < 2 or any(c.strength_param is None or c.strength_param in fixed
+                            for c in pair):
+        return found
+    ends = {}  # name: (rung, strength, energy, why it is no verdict)
+    for c in pair:
+        say(f"re-calibrating with {c.name}")
+        rung = refit_with(c, profiles, blocks, settings, first_rung.values, freedom)
+        curve = energy_curve(c.strengths, c.signatures_w, res.windows)
+        ends[c.name] = (rung, *refit_ends(c, rung, first_rung, res, curve))
+    verdicts = [name for name, end in ends.items() if end[3] is None]
+    told = "; re-calibrated with each, every parameter free: "
+    if len(verdicts) != 1:
+        told += ("both are verdicts" if verdicts else
+                 "; ".join(f"with {name} {end[3]}" for name, end in ends.items()))
+        return replace(found, why=found.why + told)
+    a, = verdicts
+    b = next(name for name in ends if name != a)
+    (rung_a, value, energy_kwh, _), (rung_b, _, _, not_b) = ends[a], ends[b]
+    held_a, held_b = rung_a.held_out["nrmse"], rung_b.held_out["nrmse"]
+    if held_a >= held_b:
+        told += (f"only {a} is a verdict, but the bus with {b} predicts the held-out blocks "
+                 f"as well (NRMSE {held_b:.3g} against {held_a:.3g})")
+        return replace(found, why=found.why + told)
+    c = by_name[a]
+    strength, _ = attributed_strength(c, res, by_name, nuisance, blocks, profiles)
+    strength = replace(strength, value={c.strength_param: value}, at_bound=False,
+                       energy_kwh=energy_kwh).taking_in_value(value)
+    explained = next(x for x in found.ranked if x.name == a)
+    why = (f"{found.why}; re-calibrated with each, every parameter free, the bus with {a} ends "
+           f"at {c.strength_param} = {value:.4g}, inside the range, and predicts the held-out "
+           f"blocks best (NRMSE {first_rung.held_out['nrmse']:.3g} calibrated, {held_a:.3g} "
+           f"with {a}, {held_b:.3g} with {b}); with {b} {not_b}")
+    return replace(found, verdict=a, why=why, strength=strength, verdict_w=explained.fit_w,
+                   ranking=_ranked_with(found.ranking, a, strength), status="re-calibrated",
+                   refit=rung_a)
 
 
 def voltage_stage(found: Attributed, check, by_name: dict, windows) -> Attributed:
@@ -746,6 +826,8 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     found = bound_stage(found, res, by_name, profiles, blocks, first_rung, settings, freedom,
                         say)
     found = voltage_stage(found, check, by_name, res.windows)
+    found = tie_stage(found, res, by_name, nuisance, profiles, blocks, first_rung, settings,
+                      freedom, say)
     verdict = found.verdict
     timings["attribution_s"] = time.perf_counter() - t1
 
