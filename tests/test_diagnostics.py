@@ -542,6 +542,29 @@ def _first_hours(folder, name: str, hours: int):
     return load_log(folder / f"{name}.csv").profiles
 
 
+def _quick_diagnosis(folder, name: str, hours: int):
+    """The first ``hours`` of a hidden-effect day diagnosed, with a quick calibration."""
+    from ebus_env.calibration import ISOPTSettings
+
+    return diagnose(hidden.baseline_bus(hidden.case(name)), _first_hours(folder, name, hours),
+                    calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
+
+
+def _cabin_re_calibrated(folder):
+    """4 h of the cabin-heating day diagnosed: the cabin named by re-calibrating the bus, its
+    UA within 25 % of the truth's and the held-out error falling; the diagnosis, its UA and
+    interval."""
+    d = _quick_diagnosis(folder, "cabin_heating", 4)
+    assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
+    (ua,) = d.named["parameters"].values()
+    (interval,) = d.named["interval"].values()
+    assert ua == pytest.approx(hidden.case("cabin_heating").truth["cabin_hvac.ua_w_per_k"],
+                               rel=0.25)
+    assert d.after_runs and d.nrmse["after"]["held_out"] < d.nrmse["before"]["held_out"]
+    assert f"{ua:.4g}, inside the range" in d.why
+    return d, ua, tuple(interval)
+
+
 def _attribution_ends(monkeypatch, change) -> None:
     """Make the attribution stage end as ``change(res, candidates, found)`` says."""
     import importlib
@@ -596,22 +619,12 @@ def test_a_strength_at_its_bound_is_settled_by_re_calibrating_the_bus_with_the_e
     the error falls and the cabin is named, its interval reaching from the bound to that value;
     on 3 h of the control day a time-of-day load the day does not have ends at its bound
     again, and nothing is named."""
-    from ebus_env.calibration import ISOPTSettings
-
-    quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
     _at_lower_bound(monkeypatch, "cabin_hvac")
-    case = hidden.case("cabin_heating")
-    d = diagnose(hidden.baseline_bus(case), _first_hours(tmp_path, "cabin_heating", 4), **quick)
-    assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
-    (ua,) = d.named["parameters"].values()
-    (low, high), = d.named["interval"].values()
-    assert ua == pytest.approx(case.truth["cabin_hvac.ua_w_per_k"], rel=0.25)
-    assert (low, high) == (10.0, ua) and d.after_runs
-    assert d.nrmse["after"]["held_out"] < d.nrmse["before"]["held_out"]
-    assert f"the bus ends at {ua:.4g}, inside the range" in d.sentence
+    _, ua, interval = _cabin_re_calibrated(tmp_path)
+    assert interval == (10.0, ua)
 
     _at_lower_bound(monkeypatch, "aux_schedule")  # not in the day
-    d = diagnose(hidden.baseline_bus(hidden.case("control")), _first_hours(tmp_path, "control", 3), **quick)
+    d = _quick_diagnosis(tmp_path, "control", 3)
     assert d.verdict is None and d.status == "implausible"
     assert "re-calibrated with aux_schedule, every parameter free, the bus ends at " \
         "aux_schedule.scale = 0, at a bound too" in d.why
@@ -623,24 +636,13 @@ def test_a_tie_is_broken_by_re_calibrating_the_bus_with_each_effect(monkeypatch,
     than the log resolves, the cabin ends inside its range and predicts the held-out blocks
     better, and is named, its interval taking in the re-calibrated value; on 3 h of the
     control day neither effect is a verdict once re-calibrated, and the tie stands."""
-    from ebus_env.calibration import ISOPTSettings
-
-    quick = dict(calibrate=True, settings=ISOPTSettings(iterations=5), polish_starts=1)
     _tied(monkeypatch, "regen_soc_limit", "cabin_hvac")
-    case = hidden.case("cabin_heating")
-    d = diagnose(hidden.baseline_bus(case), _first_hours(tmp_path, "cabin_heating", 4), **quick)
-    assert d.verdict == "cabin_hvac" and d.status == "re-calibrated", d.why
-    (ua,) = d.named["parameters"].values()
-    (low, high), = d.named["interval"].values()
-    assert ua == pytest.approx(case.truth["cabin_hvac.ua_w_per_k"], rel=0.25)
-    assert low <= ua <= high and d.after_runs
-    assert d.nrmse["after"]["held_out"] < d.nrmse["before"]["held_out"]
-    assert "predicts the held-out blocks best" in d.why
+    d, ua, (low, high) = _cabin_re_calibrated(tmp_path)
+    assert low <= ua <= high and "predicts the held-out blocks best" in d.why
     assert "with regen_soc_limit the bus ends at regen_soc_limit.derate_soc_pct" in d.why
 
     _tied(monkeypatch, "regen_soc_limit", "aux_schedule")
-    d = diagnose(hidden.baseline_bus(hidden.case("control")),
-                 _first_hours(tmp_path, "control", 3), **quick)
+    d = _quick_diagnosis(tmp_path, "control", 3)
     assert d.verdict is None and d.status == "tie"
     assert "re-calibrated with each, every parameter free: with regen_soc_limit the bus " \
         "ends at" in d.why and "with aux_schedule the bus ends at aux_schedule.scale = 0, " \
