@@ -649,6 +649,49 @@ def test_a_tie_is_broken_by_re_calibrating_the_bus_with_each_effect(monkeypatch,
         "at a bound too" in d.why
 
 
+def _left_outside(monkeypatch, first: str) -> None:
+    """Make the attribution end with no library effect, ``first`` ranked first."""
+    from dataclasses import replace
+
+    def outside(res, candidates, found):
+        top = [r for r in found.ranking if r["effect"] == first]
+        rest = [r for r in found.ranking if r["effect"] != first]
+        return replace(found, verdict=None, status="outside library", ranking=top + rest,
+                       strength=Strength({}, {}), verdict_w=None, why="outside")
+
+    _attribution_ends(monkeypatch, outside)
+
+
+def test_an_effect_the_attribution_left_out_is_named_where_the_held_out_error_falls(
+        monkeypatch, tmp_path):
+    """Where no effect explained enough of the missing power, the bus is re-calibrated with
+    the effect ranked first: on 4 h of the cabin-heating day (truth UA 450 W/K) the cabin ends
+    inside its range and the held-out error falls on every held-out block, and it is named;
+    on 3 h of the control day a time-of-day load ends at its bound, and nothing is named."""
+    _left_outside(monkeypatch, "cabin_hvac")
+    d, ua, (low, high) = _cabin_re_calibrated(tmp_path)
+    assert low <= ua <= high and "resamples of the held-out blocks" in d.why
+
+    _left_outside(monkeypatch, "aux_schedule")
+    d = _quick_diagnosis(tmp_path, "control", 3)
+    assert d.verdict is None and d.status == "outside library"
+    assert "re-calibrated with aux_schedule, every parameter free, the bus ends at " \
+        "aux_schedule.scale = 0, at a bound too" in d.why
+
+
+def test_a_held_out_fall_counts_only_where_the_blocks_agree():
+    """The fall of the held-out error that holds in 95 % of resamples of the blocks: a fall
+    by half on every block is a fall by half; a fall on one block of five is none, though
+    the day's error falls by 11 %."""
+    from ebus_env.diagnostics.diagnose import held_out_fall
+
+    before = np.ones(5)
+    assert held_out_fall(before, 0.25 * before) == pytest.approx(0.5)
+    one = np.array([1.0, 1.0, 1.0, 1.0, 0.0])
+    assert 1.0 - np.sqrt(one.sum() / before.sum()) == pytest.approx(0.106, abs=1e-3)
+    assert held_out_fall(before, one) == pytest.approx(0.0)
+
+
 def test_html_report_renders_in_headless_chromium(cabin_report):
     _, folder = cabin_report
     browser = shutil.which("chromium") or shutil.which("chromium-browser")

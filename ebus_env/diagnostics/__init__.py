@@ -11,9 +11,10 @@ effect is missing, add it and watch the error fall.
    held-out windows (robust, cross-validated, sparse), and the verdict, decided by a block
    bootstrap over the windows; the strength with its interval
    (:func:`~ebus_env.diagnostics.candidates.estimate_strength`). With a calibration, a
-   strength at a bound and a tie of two effects are settled by re-calibrating the bus with
-   the effect (:func:`~ebus_env.diagnostics.diagnose.bound_stage`,
-   :func:`~ebus_env.diagnostics.diagnose.tie_stage`).
+   strength at a bound, a tie of two effects and a day no effect explains are settled by
+   re-calibrating the bus with the effect (:func:`~ebus_env.diagnostics.diagnose.bound_stage`,
+   :func:`~ebus_env.diagnostics.diagnose.tie_stage`,
+   :func:`~ebus_env.diagnostics.diagnose.outside_stage`).
 5. :mod:`~ebus_env.diagnostics.clues`: what the missing power moves with, for effects the
    library lacks.
 6. :mod:`~ebus_env.diagnostics.ladder`: NRMSE before and after each added effect, re-calibrated

@@ -196,6 +196,21 @@ def fit_on_blocks(model, values: dict, profiles, cal: Blocks, held: Blocks) -> t
             evaluate_fit(model, profiles, params, held, charge)[0])
 
 
+def block_errors(model, values: dict, profiles, blocks: Blocks) -> np.ndarray:
+    """Sum of squared SoC errors [%-points^2] in each block that ``blocks`` scores, profile by
+    profile in order (the SoC restarting at each block): what a paired comparison of two
+    fits on the same blocks resamples."""
+    params = model.param_vector(model.carry_over(values))
+    problem = CalibrationProblem(model, profiles, [model.param_names[0]], chunks=1,
+                                 blocks=blocks)
+    out = []
+    for k, d in enumerate(problem.data):
+        error_pct = 100.0 * (problem.simulate(d, params[None, :])[0] - d.measured)
+        block = np.searchsorted(blocks.starts[k], d.rows, side="right") - 1
+        out.extend(np.bincount(block, error_pct**2)[np.unique(block)])
+    return np.array(out)
+
+
 def strength_scan(problem, model, effect: Effect, bases: list[dict]) -> list[dict]:
     """For each point of ``bases``, the best of ``SCAN`` values of the effect's first strength
     parameter across its range (one batched evaluation): where a global search should start,
