@@ -679,6 +679,36 @@ def test_an_effect_the_attribution_left_out_is_named_where_the_held_out_error_fa
         "aux_schedule.scale = 0, at a bound too" in d.why
 
 
+def test_an_effect_is_credited_only_with_the_fall_beyond_the_bus_without_it_at_its_best(
+        tmp_path):
+    """4 h of the control day on a bus configured with 0.8 times its cells' capacity, whose
+    first calibration ends where it started (no search): adding a time-of-day load and
+    re-calibrating finds the capacity again and lowers the held-out error by more than half.
+    The bus without the load, searched again from there, fits as well: the load is credited
+    with no fall, and the first search's error is kept beside it."""
+    from ebus_env.calibration import ISOPTSettings
+    from ebus_env.diagnostics.ladder import calibrate_rung, error_ladder
+
+    case = hidden.case("control")
+    profiles = _first_hours(tmp_path, "control", 4)
+    bus = hidden.baseline_bus(case)
+    cap = "rint_battery.cell_capacity_ah"
+    effect, name = cap.split(".")
+    bus = bus.overlay({"params": {effect: {name: 0.8 * bus.build().params[
+        bus.build().param_index(cap)]}}}, "a smaller cell")
+    blocks = split_blocks(profiles)
+    unlucky = calibrate_rung(bus, [], profiles, *blocks, profiles[0].dt_s,
+                             ISOPTSettings(iterations=0), 0)
+    ladder = error_ladder(bus, profiles, ["aux_schedule"], profiles[0].dt_s,
+                          ISOPTSettings(iterations=5), 1, first=unlucky, blocks=blocks)
+    first, added = ladder
+    assert 1.0 - added.held_out["nrmse"] / unlucky.held_out["nrmse"] > 0.5
+    assert first.searched_nrmse == unlucky.calibration["nrmse"]
+    assert first.calibration["nrmse"] < 0.5 * unlucky.calibration["nrmse"]
+    assert abs(improvement(ladder)) < 0.1, [r.held_out for r in ladder]
+    assert first.to_json()["searched_nrmse"] == unlucky.calibration["nrmse"]
+
+
 def test_a_held_out_fall_counts_only_where_the_blocks_agree():
     """The fall of the held-out error that holds in 95 % of resamples of the blocks: a fall
     by half on every block is a fall by half; a fall on one block of five is none, though

@@ -99,11 +99,16 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                          _f(r.held_out["nrmse"], 4),
                          *([_f(r.held_out.get("charge_nrmse"), 4)] if charge else []),
                          _f(r.calibration["rmse_pct"], 3), _f(r.held_out["rmse_pct"], 3),
-                         ", ".join(f"{n} ({side})" for n, side in r.range_ends.items())])
+                         "; ".join(filter(None, [
+                             ", ".join(f"{n} ({side})" for n, side in r.range_ends.items()),
+                             # the fall of the next rung is measured against this search
+                             f"searched again from the next rung's values (its own search "
+                             f"ended at NRMSE {r.searched_nrmse:.4f})"
+                             if r.searched_nrmse is not None else ""]))])
     out.append(("Error (" + d.nrmse["blocks"] + ")",
                 ["model", "NRMSE cal", "NRMSE held-out",
                  *(["charge NRMSE held-out"] if charge else []), "RMSE cal %",
-                 "RMSE held-out %", "calibrated at a range end"], fit_rows))
+                 "RMSE held-out %", "calibrated at a range end; note"], fit_rows))
     return out
 
 
