@@ -10,6 +10,9 @@ too on logs of the pack's current) and the new effects' strength parameters free
 starting from the rung before (and the diagnosis's estimate of the effect's strength, when it
 has one). A :class:`Freedom` changes that choice as a calibration config does: other free
 parameters in place of the paper's, narrower or wider search ranges, known values held.
+After each rung the rung before is searched again from where the new one ended
+(:func:`revisit`): the fall an effect is credited with is the fall beyond the bus without it
+at its best.
 """
 
 from __future__ import annotations
