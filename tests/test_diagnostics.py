@@ -692,10 +692,10 @@ def test_an_effect_is_credited_only_with_the_fall_beyond_the_bus_without_it_at_i
     case = hidden.case("control")
     profiles = _first_hours(tmp_path, "control", 4)
     bus = hidden.baseline_bus(case)
-    cap = "rint_battery.cell_capacity_ah"
-    effect, name = cap.split(".")
-    bus = bus.overlay({"params": {effect: {name: 0.8 * bus.build().params[
-        bus.build().param_index(cap)]}}}, "a smaller cell")
+    model = bus.build()
+    capacity_ah = model.params[model.param_index("rint_battery.cell_capacity_ah")]
+    bus = bus.overlay({"params": {"rint_battery": {"cell_capacity_ah": 0.8 * capacity_ah}}},
+                      "a smaller cell")
     blocks = split_blocks(profiles)
     unlucky = calibrate_rung(bus, [], profiles, *blocks, profiles[0].dt_s,
                              ISOPTSettings(iterations=0), 0)

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ebus_env.calibration.isopt import ISOPTSettings
 from ebus_env.calibration.problem import logs_current
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics import attribution, clues, deciding, quality, residual
@@ -36,6 +35,7 @@ from ebus_env.diagnostics.ladder import (
     check_known,
     error_ladder,
     fit_on_blocks,
+    local_rung,
     revisit,
     split_blocks,
     windows_in,
@@ -547,10 +547,8 @@ def refit_with(candidate, profiles, blocks, settings, start: dict,
     """The bus re-calibrated with ``candidate``'s effect: a local search (no iSOPT iterations)
     from ``start``, the effect's strength scanned across its range first, every parameter the
     calibration frees (and the strength) free together, the model run in full."""
-    local = replace(settings or ISOPTSettings(), iterations=0)
-    return calibrate_rung(candidate.bus, [candidate.effect], profiles, *blocks,
-                          profiles[0].dt_s, local, 1, f"+ {candidate.name}", start=start,
-                          model=candidate.model, freedom=freedom)
+    return local_rung(candidate.bus, [candidate.effect], profiles, blocks, settings,
+                      f"+ {candidate.name}", start, candidate.model, freedom)
 
 
 def refit_ends(c, rung: Rung, first_rung: Rung, res: Residual,

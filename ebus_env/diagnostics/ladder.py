@@ -308,6 +308,16 @@ def error_ladder(bus: BusConfig, profiles, add, dt_s: float = 0.1, settings=None
     return rungs
 
 
+def local_rung(bus: BusConfig | None, added: list[Effect], profiles,
+               blocks: tuple[Blocks, Blocks], settings, label: str, start: dict, model=None,
+               freedom: Freedom | None = None) -> Rung:
+    """:func:`calibrate_rung` as a local search from ``start``: no iSOPT iterations, one
+    Levenberg-Marquardt polish (the last added effect's strength scanned first)."""
+    local = replace(settings or ISOPTSettings(), iterations=0)
+    return calibrate_rung(bus, added, profiles, *blocks, profiles[0].dt_s, local, 1, label,
+                          start=start, model=model, freedom=freedom)
+
+
 def revisit(before: Rung, after: Rung, profiles, blocks: tuple[Blocks, Blocks], settings=None,
             freedom: Freedom | None = None, bus: BusConfig | None = None,
             added: list[Effect] = ()) -> Rung:
@@ -321,10 +331,8 @@ def revisit(before: Rung, after: Rung, profiles, blocks: tuple[Blocks, Blocks], 
     its added effects (``bus`` only where ``before`` holds no model)."""
     if before.calibration_result is None or after.calibration_result is None:
         return before
-    local = replace(settings or ISOPTSettings(), iterations=0)
-    again = calibrate_rung(bus, list(added), profiles, *blocks, profiles[0].dt_s, local, 1,
-                           before.label, start=after.values, model=before.model,
-                           freedom=freedom)
+    again = local_rung(bus, list(added), profiles, blocks, settings, before.label,
+                       after.values, before.model, freedom)
     if again.calibration_result.cost >= before.calibration_result.cost:
         return before
     return replace(again, searched_nrmse=before.calibration["nrmse"])
