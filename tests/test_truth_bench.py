@@ -77,6 +77,46 @@ def test_the_hidden_effects_own_power_is_named_on_an_oracle_day(tmp_path_factory
     assert row["right"] and row["verdict"] in ("road_grade", bench.ORACLE), row["why"]
 
 
+def test_what_no_parameter_takes_up_of_a_load_is_what_the_clue_ceiling_reads():
+    """``clue_ceiling.left_over``: a load made of the parameters' signatures leaves nothing;
+    any other leaves a part that no signature correlates with (weighted): the ceiling reads
+    only what the calibration cannot take up."""
+    import numpy as np
+
+    from benchmarks.clue_ceiling import left_over
+
+    rng = np.random.default_rng(3)
+    signatures = rng.normal(size=(200, 3))
+    weight = rng.uniform(0.5, 2.0, 200)
+    made = signatures @ np.array([2.0, -1.0, 0.5])
+    assert np.allclose(left_over(made, signatures, weight), 0.0, atol=1e-9)
+    own = rng.normal(size=200)
+    left = left_over(made + own, signatures, weight)
+    assert np.allclose(signatures.T @ (weight * left), 0.0, atol=1e-9)
+    assert np.allclose(left, left_over(own, signatures, weight))
+
+
+@pytest.mark.slow
+def test_a_chillers_own_power_is_read_in_a_charging_mode(tmp_path_factory):
+    """The clue ceiling on the smoke run's chiller day (its last 4 h): the chiller draws only
+    while the bus charges, so its own power, read by operating mode as the diagnosis reads
+    missing power, lies in a charging mode and in no driving mode; the calibration leaves a
+    part of it, not all and not none."""
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    from benchmarks.clue_ceiling import ceiling_day
+
+    case = next(c for c in bench.truth_cases("truthsim", smoke=True)
+                if c.hidden == "battery_chiller")
+    folder = tmp_path_factory.getbasetemp() / "truth-days"
+    folder.mkdir(exist_ok=True)
+    row = ceiling_day(("truthsim", case, str(folder)))
+    assert row["own_clue"] in ("CC charging", "CV charging"), row["by_mode_kw"]
+    for mode in ("accelerating", "cruising", "braking/regen", "idle"):
+        assert abs(row["by_mode_kw"][mode][0]) < 0.1, (mode, row["by_mode_kw"])
+    assert 0.0 < row["kept_frac"] < 1.0
+
+
 def test_a_part_of_the_bench_is_its_first_days():
     """``--per-effect N --controls M`` runs the whole bench's first N days of each effect and
     first M control days: the same days (same seeds), not a new draw."""
