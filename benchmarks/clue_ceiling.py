@@ -1,6 +1,7 @@
 """What an operating-mode clue can see of a load outside the library: its ceiling on the bench.
 
     python benchmarks/clue_ceiling.py [--cache DIR] [--workers 2] [--per-effect N]
+    python benchmarks/clue_ceiling.py --current-voltage   # on BMS logs (the counted charge)
 
 On the truth simulator's days whose hidden load the library lacks (an air compressor, a
 battery chiller), the log carries the load's own power as well (the oracle column
@@ -54,8 +55,8 @@ def ceiling_day(job) -> dict:
     from ebus_env.diagnostics.diagnose import CLUE_SIGMA, candidate_stage, residual_stage
     from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks
 
-    source, case, folder = job
-    profiles, truth = bench.truth_day(source, case, Path(folder), oracle=True)
+    source, case, folder, current_voltage = job
+    profiles, truth = bench.truth_day(source, case, Path(folder), current_voltage, oracle=True)
     bus = load_bus("12m", without=list(bench.BASELINE_WITHOUT))
     dt_s = profiles[0].dt_s
     model = bus.build(dt_s)
@@ -101,6 +102,8 @@ def main() -> None:
                         help="folder of the generated days (shared with bench_diagnose.py)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--per-effect", type=int, default=None, help="the first N days of each")
+    parser.add_argument("--current-voltage", action="store_true",
+                        help="BMS logs: the pack's current and voltage logged too")
     parser.add_argument("--rows", type=Path, default=None, help="write each day's row (JSON)")
     args = parser.parse_args()
     from concurrent.futures import ProcessPoolExecutor
@@ -112,7 +115,8 @@ def main() -> None:
     print(f"{'day':20s} {'load kW':>7s} {'left':>5s}  {'own power':14s} {'what is left':14s} "
           f"{'beyond noise':14s} {'sigmas':>6s} right modes")
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        for row in pool.map(ceiling_day, [("truthsim", c, str(args.cache)) for c in cases]):
+        for row in pool.map(ceiling_day, [("truthsim", c, str(args.cache), args.current_voltage)
+                                          for c in cases]):
             rows.append(row)
             print(f"{row['case']:20s} {row['mean_load_kw']:7.2f} {row['kept_frac']:5.0%}  "
                   f"{row['own_clue'] or '-':14s} {row['left_clue'] or '-':14s} "

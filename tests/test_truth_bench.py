@@ -110,7 +110,7 @@ def test_a_chillers_own_power_is_read_in_a_charging_mode(tmp_path_factory):
                 if c.hidden == "battery_chiller")
     folder = tmp_path_factory.getbasetemp() / "truth-days"
     folder.mkdir(exist_ok=True)
-    row = ceiling_day(("truthsim", case, str(folder)))
+    row = ceiling_day(("truthsim", case, str(folder), False))
     assert row["own_clue"] in ("CC charging", "CV charging"), row["by_mode_kw"]
     for mode in ("accelerating", "cruising", "braking/regen", "idle"):
         assert abs(row["by_mode_kw"][mode][0]) < 0.1, (mode, row["by_mode_kw"])
