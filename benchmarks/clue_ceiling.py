@@ -6,10 +6,11 @@
 On the truth simulator's days whose hidden load the library lacks (an air compressor, a
 battery chiller), the log carries the load's own power as well (the oracle column
 ``logged_load_kw``, the day with the load against the same day without it). The diagnosis's
-clue reads the missing power per window by operating mode (:func:`residual.decompose` over
-the windows' mode shares) and names the mode with the most missing energy among those whose
-power stands ``CLUE_SIGMA`` standard errors above zero. This reads the hidden load three ways
-with the same rule, the model calibrated as the diagnosis calibrates it (rung 0):
+clue reads the missing power per window by operating mode (its mode table:
+:func:`residual.decompose` over the windows' mode shares) and names the mode with the most
+missing energy among those whose power stands ``CLUE_SIGMA`` standard errors above zero
+(:func:`mode_clue`). This reads the hidden load three ways with the same table and rule,
+the model calibrated as the diagnosis calibrates it (rung 0):
 
 1. **the load itself**, as a perfect residual would show it: which mode the windowed reading
    gives the load's own power (largest positive energy, no noise);
@@ -52,7 +53,7 @@ def ceiling_day(job) -> dict:
     """The three readings of one outside-library day (worker of the pool)."""
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import attribution, residual
-    from ebus_env.diagnostics.diagnose import CLUE_SIGMA, candidate_stage, residual_stage
+    from ebus_env.diagnostics.diagnose import _breakdowns, candidate_stage, mode_clue, residual_stage
     from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks
 
     source, case, folder, current_voltage = job
@@ -68,32 +69,35 @@ def ceiling_day(job) -> dict:
     w, usable, every = res.windows, res.usable, res.anchored[0].record_every
     load_w = np.array([np.mean(residual.channel(res.anchored[w.profile_index[i]],
                                                 "logged_load_w")[w.rows(i, every)])
-                       for i in range(len(w))])[usable]
-    labels = [residual.operating_modes(r) for r in res.anchored]
-    share = residual.fractions(labels, w, every, len(residual.MODES))[usable]
-    hours = np.bincount(np.concatenate(labels), minlength=len(residual.MODES)) * every * dt_s \
-        / 3600.0
-    noise, weight = res.noise_w[usable], attribution.weights(res.noise_w)[usable]
-    left = left_over(load_w, np.column_stack([by_name[n].signature_w[usable] for n in free]),
-                     weight)
-    own, _ = residual.decompose(load_w, noise, share)
-    kept, _ = residual.decompose(left, noise, share)
-    _, stderr = residual.decompose(res.missing_w[usable], noise, share)
+                       for i in range(len(w))])
+    weight = attribution.weights(res.noise_w)
+    left_w = np.zeros(len(w))
+    left_w[usable] = left_over(load_w[usable], np.column_stack(
+        [by_name[n].signature_w[usable] for n in free]), weight[usable])
 
-    def largest(power, shown):
-        modes = [k for k in range(len(power)) if np.isfinite(power[k]) and shown(k)]
-        return residual.MODES[max(modes, key=lambda k: power[k] * hours[k])] if modes else None
+    def by_mode(power_w):  # the diagnosis's own mode table of a power per window
+        return _breakdowns(res.anchored, w, power_w, res.noise_w, usable)[0]
 
+    own, day = by_mode(load_w), by_mode(res.missing_w)
+    # the left-over against the standard errors of the day's own missing power
+    kept = [{**k, "stderr_kw": d["stderr_kw"]} for k, d in zip(by_mode(left_w), day,
+                                                                strict=True)]
+
+    def largest(modes):
+        shown = [m for m in modes if m["missing_kw"] > 0]
+        return max(shown, key=lambda m: m["missing_kwh"])["mode"] if shown else None
+
+    on = usable
     return {"case": case.case_id, "right_modes": truth["outside_modes"],
-            "mean_load_kw": float(np.mean(load_w)) / 1e3,
-            "kept_frac": float(np.sqrt(np.sum(weight * left**2) / np.sum(weight * load_w**2))),
-            "own_clue": largest(own, lambda k: own[k] > 0),
-            "left_clue": largest(kept, lambda k: kept[k] > 0),
-            "clue": largest(kept, lambda k: kept[k] > CLUE_SIGMA * stderr[k]),
+            "mean_load_kw": float(np.mean(load_w[on])) / 1e3,
+            "kept_frac": float(np.sqrt(np.sum(weight[on] * left_w[on]**2)
+                                       / np.sum(weight[on] * load_w[on]**2))),
+            "own_clue": largest(own), "left_clue": largest(kept), "clue": mode_clue(kept),
             # the most the left-over stands out of the day's noise in any mode
-            "sigmas": float(np.nanmax(kept / stderr)),
-            "by_mode_kw": {m: [round(float(x) / 1e3, 2) for x in (own[k], kept[k], stderr[k])]
-                           for k, m in enumerate(residual.MODES) if np.isfinite(own[k])}}
+            "sigmas": max(m["missing_kw"] / m["stderr_kw"] for m in kept),
+            "by_mode_kw": {o["mode"]: [round(x, 2) for x in (o["missing_kw"], k["missing_kw"],
+                                                             k["stderr_kw"])]
+                           for o, k in zip(own, kept, strict=True)}}
 
 
 def main() -> None:
@@ -128,7 +132,7 @@ def main() -> None:
         tmp.replace(args.rows)
     for key, label in (("own_clue", "the load's own power, read by mode"),
                        ("left_clue", "what the calibration leaves of it"),
-                       ("clue", "... above its standard error x CLUE_SIGMA")):
+                       ("clue", "... above CLUE_SIGMA standard errors (the clue's rule)")):
         right = sum(r[key] in r["right_modes"] for r in rows)
         print(f"right mode, {label}: {right} of {len(rows)}")
     print(f"the left-over's largest power by mode, in standard errors: at most "
