@@ -10,6 +10,7 @@ with a verdict::
     python benchmarks/attribution_rules.py                   # the shipped rules and VARIANTS
     python benchmarks/attribution_rules.py --set CONFIDENCE=0.9 --set MIN_EXPLAINED=0.2
     python benchmarks/attribution_rules.py --oracle          # each hidden effect's own power too
+    python benchmarks/attribution_rules.py --frontier        # the rules loosened step by step
     python benchmarks/attribution_rules.py --per-effect 2 --controls 3   # the bench's first days
     python benchmarks/attribution_rules.py --smoke           # CI: three 4 h days
 
@@ -52,6 +53,17 @@ VARIANTS = (
     {"NUISANCE_STEPS": 3.0, "MIN_EXPLAINED": 0.1, "MIN_GAIN": 0.02, "CONFIDENCE": 0.9},
 )
 """The settings printed by default: the shipped rules, then each loosened towards naming more."""
+LOOSE = {"MIN_EXPLAINED": 0.0, "MIN_GAIN": 0.0, "MIN_MARGIN": 0.0, "CONFIDENCE": 0.5,
+         "MIN_SIGNIFICANCE": 0.0}
+"""The rules at the loose end of ``--frontier``: an effect is named where it explains more of
+the held-out missing power than re-adjusting the calibrated parameters alone in half the
+resamples, and more than the runner-up."""
+FRONTIER = (0.0, 0.25, 0.5, 0.75, 1.0)
+"""The steps of ``--frontier``: the fraction of the way from the shipped rules to ``LOOSE``
+(0: the shipped rules)."""
+FIRST = "the effect ranked first"
+"""Not a setting of the rules: the effect that explains the most of the held-out missing power
+is the verdict on every day (the end of the frontier, where nothing is left to abstain)."""
 RULES = ("MIN_EXPLAINED", "MIN_SIGNIFICANCE", "MIN_MARGIN", "MIN_GAIN", "TIE", "CONFIDENCE",
          "NUISANCE_STEPS", "HUBER_C")
 """The attribution's constants a setting may change."""
@@ -130,9 +142,20 @@ def rules(setting: dict):
             setattr(attribution, name, value)
 
 
-def decide(job) -> tuple[str, str | None, str]:
-    """One cached day decided under a setting (worker of the pool): (label, verdict, status),
-    the label saying whether the day is right, wrong or abstained."""
+def label(expected, verdict: str | None, status: str, effects: list[str], oracle: bool) -> str:
+    """Whether a day's verdict is right, wrong or an abstention, or a control day's named or
+    quiet (``effects``: the effect candidates, best first)."""
+    if expected is None:
+        return "control named" if verdict else "control quiet"
+    if named_right(expected, verdict, status, effects, oracle):
+        return "right"
+    return "abstained" if verdict is None else "wrong"
+
+
+def decide(job) -> tuple[str, str]:
+    """One cached day decided under a setting (worker of the pool): the label of its verdict,
+    and the label it would have if the effect ranked first were the verdict (:data:`FIRST`;
+    the ranking does not depend on the rules)."""
     from ebus_env.diagnostics.candidates import Candidate
 
     path, setting, oracle = job
@@ -143,44 +166,50 @@ def decide(job) -> tuple[str, str | None, str]:
     with rules(setting):
         d = attribution.attribute(r["missing_w"], r["noise_w"], candidates, r["usable"],
                                   nuisance=r["nuisance"], measurement_w=r["measurement_w"])
+    effects = [a.name for a in d.ranking if a.kind != "parameter"]
     verdict, status = d.verdict, d.status
     if verdict is not None and r["implausible"].get(verdict):
         verdict, status = None, "implausible"
-    expected = r["expected"]
-    effects = [a.name for a in d.ranking if a.kind != "parameter"]
-    if expected is None:
-        label = "control named" if verdict else "control quiet"
-    elif named_right(expected, verdict, status, effects, oracle):
-        label = "right"
-    elif verdict is None:
-        label = "abstained"
-    else:
-        label = "wrong"
-    return label, verdict, status
+    first = effects[0] if effects else None
+    return (label(r["expected"], verdict, status, effects, oracle),
+            label(r["expected"], first, "named", effects, oracle))
+
+
+def loosened(t: float) -> dict:
+    """The shipped rules moved the fraction ``t`` of the way to :data:`LOOSE`."""
+    return {k: getattr(attribution, k) + t * (v - getattr(attribution, k))
+            for k, v in LOOSE.items()}
+
+
+def tally(records: list[tuple[str, str | None]], labels: list[str]):
+    """Counts of the labels by (source, hidden effect), and (library effects right, library
+    days, wrong verdicts, control days with a verdict, control days)."""
+    groups: dict = {}
+    for (source, hidden), lab in zip(records, labels, strict=True):
+        groups.setdefault((source, hidden or "control"), Counter())[lab] += 1
+    library = [k for k in groups if k[1] not in ("control",) + OUTSIDE]
+    controls = [g for k, g in groups.items() if k[1] == "control"]
+    named = sum(g["control named"] for g in controls)
+    return groups, (sum(groups[k]["right"] for k in library),
+                    sum(sum(groups[k].values()) for k in library),
+                    sum(g["wrong"] for g in groups.values()), named,
+                    named + sum(g["control quiet"] for g in controls))
 
 
 def evaluate(paths: list[Path], records: list[tuple[str, str | None]], setting: dict,
-             oracle: bool, workers: int) -> None:
-    """Decide every cached day under ``setting`` and print the tally."""
+             oracle: bool, workers: int) -> list[tuple[str, str]]:
+    """Decide every cached day under ``setting``, print the tally, return :func:`decide`'s
+    labels."""
     from concurrent.futures import ProcessPoolExecutor
 
     t0 = time.perf_counter()
     with ProcessPoolExecutor(workers) as pool:
         decided = list(pool.map(decide, [(p, setting, oracle) for p in paths]))
-    groups: dict = {}
-    for (source, hidden), (label, _, _) in zip(records, decided, strict=True):
-        groups.setdefault((source, hidden or "control"), Counter())[label] += 1
-    library = [k for k in groups if k[1] not in ("control",) + OUTSIDE]
-    right = sum(groups[k]["right"] for k in library)
-    total = sum(sum(groups[k].values()) for k in library)
-    wrong = sum(g["wrong"] for g in groups.values())
-    controls = [g for k, g in groups.items() if k[1] == "control"]
-    named = sum(g["control named"] for g in controls)
-    quiet = sum(g["control quiet"] for g in controls)
+    groups, (right, total, wrong, named, controls) = tally(records, [d[0] for d in decided])
     name = ", ".join(f"{k}={v:g}" for k, v in setting.items()) or "the shipped rules"
     print(f"\n{name}{' + the hidden effects in a perfect form' if oracle else ''}: "
           f"library effects named right {right} of {total}, wrong verdicts {wrong}, "
-          f"control days with a verdict {named} of {named + quiet} "
+          f"control days with a verdict {named} of {controls} "
           f"({time.perf_counter() - t0:.0f} s)")
     for (source, hidden), g in sorted(groups.items()):
         if hidden == "control":
@@ -188,6 +217,26 @@ def evaluate(paths: list[Path], records: list[tuple[str, str | None]], setting: 
         n = sum(g.values())
         print(f"  {source:9s} {hidden:16s} right {g['right']:2d} of {n:2d}"
               + (f", wrong {g['wrong']}" if g["wrong"] else ""))
+    return decided
+
+
+def frontier(paths, records, oracle: bool, workers: int) -> None:
+    """The trade-off of the rules: each step of :data:`FRONTIER` from the shipped rules to
+    :data:`LOOSE`, then :data:`FIRST`; a table of the library effects named right, the wrong
+    verdicts and the control days with a verdict, after each step's tally."""
+    rows = []
+    for t in FRONTIER:
+        decided = evaluate(paths, records, loosened(t), oracle, workers)
+        rows.append(("shipped" if t == 0.0 else f"{100 * t:.0f} % loosened",
+                     tally(records, [d[0] for d in decided])[1]))
+        if t == 0.0:
+            first = tally(records, [d[1] for d in decided])[1]
+    rows.append((FIRST, first))
+    print("\n| rules | library effects named right | wrong verdicts | control days with a "
+          "verdict |\n|---|---|---|---|")
+    for name, (right, total, wrong, named, controls) in rows:
+        print(f"| {name} | {right} of {total} ({100 * right / max(total, 1):.0f} %) | {wrong} "
+              f"| {named} of {controls} |")
 
 
 def parse_setting(items: list[str]) -> dict:
@@ -213,6 +262,9 @@ def main() -> None:
                         help=f"one setting of the rules ({', '.join(RULES)}); default: VARIANTS")
     parser.add_argument("--oracle", action="store_true",
                         help="add each hidden effect in a perfect form (its own power)")
+    parser.add_argument("--frontier", action="store_true",
+                        help="the rules loosened step by step to LOOSE, then the effect "
+                        "ranked first named on every day: a table of the trade-off")
     parser.add_argument("--source", choices=tuple(bench.SOURCES), action="append")
     parser.add_argument("--per-effect", type=int, default=None)
     parser.add_argument("--controls", type=int, default=None)
@@ -244,6 +296,9 @@ def main() -> None:
     print(f"{len(paths)} days calibrated or read from {args.cache} "
           f"({time.perf_counter() - t0:.0f} s)")
     records = [(source, case.hidden) for source, case, *_ in jobs]
+    if args.frontier:
+        frontier(paths, records, args.oracle, args.workers)
+        return
     for setting in settings:
         evaluate(paths, records, setting, args.oracle, args.workers)
 

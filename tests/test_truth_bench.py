@@ -310,3 +310,30 @@ def test_with_the_truths_bus_and_forms_the_library_drives_its_day_alike(tmp_path
     assert abs(accelerating_ratio - 1.0) < 0.04
     assert abs(back_ratio - 1.0) < 0.10
     assert ratios(None, False)[1] > 1.2
+
+
+def test_the_rules_frontier_runs_from_the_shipped_rules_to_the_loose_end():
+    """``attribution_rules --frontier``: step 0 is the shipped rules, step 1 ``LOOSE``, each
+    step in between lies between them; a day's label counts a control day's verdict apart
+    from a hidden effect's, and a tie of the library's effect and its perfect form as right."""
+    rules = pytest.importorskip("attribution_rules")
+    from ebus_env.diagnostics import attribution
+
+    assert rules.loosened(0.0) == {k: getattr(attribution, k) for k in rules.LOOSE}
+    assert rules.loosened(1.0) == pytest.approx(rules.LOOSE)
+    half = rules.loosened(0.5)
+    for name, loose in rules.LOOSE.items():
+        shipped = getattr(attribution, name)
+        assert min(shipped, loose) < half[name] < max(shipped, loose)
+    assert rules.label(None, "cabin_hvac", "named", ["cabin_hvac"], False) == "control named"
+    assert rules.label(None, None, "outside library", [], False) == "control quiet"
+    assert rules.label("road_grade", "road_grade", "named", ["road_grade"], False) == "right"
+    assert rules.label("road_grade", "cabin_hvac", "named", ["cabin_hvac"], False) == "wrong"
+    assert rules.label("road_grade", None, "tie", ["road_grade", "cabin_hvac"],
+                       False) == "abstained"
+    assert rules.label("road_grade", None, "tie", ["road_grade", bench.ORACLE],
+                       True) == "right"
+    _, (right, total, wrong, named, controls) = rules.tally(
+        [("truthsim", "road_grade"), ("truthsim", None), ("truthsim", "air_compressor")],
+        ["right", "control named", "wrong"])
+    assert (right, total, wrong, named, controls) == (1, 1, 1, 1, 1)
