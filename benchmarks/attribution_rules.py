@@ -155,7 +155,7 @@ def label(expected, verdict: str | None, status: str, effects: list[str], oracle
 def decide(job) -> tuple[str, str]:
     """One cached day decided under a setting (worker of the pool): the label of its verdict,
     and the label it would have if the effect ranked first were the verdict (:data:`FIRST`;
-    the ranking does not depend on the rules)."""
+    of the rules only ``NUISANCE_STEPS`` and ``HUBER_C`` change the ranking)."""
     from ebus_env.diagnostics.candidates import Candidate
 
     path, setting, oracle = job
@@ -224,13 +224,12 @@ def frontier(paths, records, oracle: bool, workers: int) -> None:
     """The trade-off of the rules: each step of :data:`FRONTIER` from the shipped rules to
     :data:`LOOSE`, then :data:`FIRST`; a table of the library effects named right, the wrong
     verdicts and the control days with a verdict, after each step's tally."""
-    rows = []
+    rows, first = [], None
     for t in FRONTIER:
         decided = evaluate(paths, records, loosened(t), oracle, workers)
         rows.append(("shipped" if t == 0.0 else f"{100 * t:.0f} % loosened",
                      tally(records, [d[0] for d in decided])[1]))
-        if t == 0.0:
-            first = tally(records, [d[1] for d in decided])[1]
+        first = first or tally(records, [d[1] for d in decided])[1]  # the same at every step
     rows.append((FIRST, first))
     print("\n| rules | library effects named right | wrong verdicts | control days with a "
           "verdict |\n|---|---|---|---|")
