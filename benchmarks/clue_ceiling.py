@@ -87,11 +87,10 @@ def ceiling_day(job) -> dict:
         shown = [m for m in modes if m["missing_kw"] > 0]
         return max(shown, key=lambda m: m["missing_kwh"])["mode"] if shown else None
 
-    on = usable
     return {"case": case.case_id, "right_modes": truth["outside_modes"],
-            "mean_load_kw": float(np.mean(load_w[on])) / 1e3,
-            "kept_frac": float(np.sqrt(np.sum(weight[on] * left_w[on]**2)
-                                       / np.sum(weight[on] * load_w[on]**2))),
+            "mean_load_kw": float(np.mean(load_w[usable])) / 1e3,
+            "kept_frac": float(np.sqrt(np.sum(weight[usable] * left_w[usable]**2)
+                                       / np.sum(weight[usable] * load_w[usable]**2))),
             "own_clue": largest(own), "left_clue": largest(kept), "clue": mode_clue(kept),
             # the most the left-over stands out of the day's noise in any mode
             "sigmas": max(m["missing_kw"] / m["stderr_kw"] for m in kept),
