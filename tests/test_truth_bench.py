@@ -337,3 +337,41 @@ def test_the_rules_frontier_runs_from_the_shipped_rules_to_the_loose_end():
         [("truthsim", "road_grade"), ("truthsim", None), ("truthsim", "air_compressor")],
         ["right", "control named", "wrong"])
     assert (right, total, wrong, named, controls) == (1, 1, 1, 1, 1)
+
+
+def test_the_residual_floors_buses_carry_the_days_pack_and_drivetrain_form():
+    """``benchmarks/residual_floor.py`` calibrates the control days with the library's bus
+    closer to the day's: with the pack's data sheet the model has the truth's cells in series,
+    rated capacity and charge C-rate, and an open-circuit voltage of the same chemistry (another
+    cell's table, within 3 % of the truth's from 20 to 95 % SoC); with one drivetrain
+    efficiency its drivetrain is the constant-efficiency form, in place of the loss map."""
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    floor = pytest.importorskip("residual_floor")
+    import numpy as np
+
+    from benchmarks.truth import sim, vehicles
+    from ebus_env.effects.battery import OCV_CELL
+
+    for chemistry, pack in vehicles.PACKS.items():
+        bus = floor.library_bus("both", chemistry)
+        model = bus.build(0.1)
+        value = {name: model.params[model.param_index(name)] for name in (
+            "rint_battery.cells_series", "rint_battery.cell_capacity_ah",
+            "rint_battery.max_charge_c_rate", "cccv_taper.cc_c_rate",
+            "constant_efficiency.motor_efficiency")}
+        assert value["rint_battery.cells_series"] == pack["cells_series"]
+        assert value["rint_battery.cell_capacity_ah"] * 3 == pytest.approx(pack["capacity_ah"])
+        assert value["rint_battery.max_charge_c_rate"] == pack["max_charge_c"]
+        assert value["cccv_taper.cc_c_rate"] == pack["max_charge_c"]
+        assert value["constant_efficiency.motor_efficiency"] == floor.MOTOR_EFFICIENCY
+        assert bus.slots["drivetrain"] == "constant_efficiency"
+        table = OCV_CELL.presets[bus.tables["rint_battery"]["ocv_cell_v"]]
+        soc_pct = np.arange(20.0, 96.0, 5.0)
+        library_v = np.interp(soc_pct, table.x, table.y)
+        truth_v = [sim.ocv_cell_v(chemistry, s / 100.0) for s in soc_pct]
+        assert np.allclose(library_v, truth_v, rtol=0.03)
+    assert floor.library_bus("shipped", "NMC").tables["rint_battery"]["ocv_cell_v"] == \
+        "lfp_a123"
+    shipped = floor.library_bus("shipped", None).build(0.1)
+    assert "efficiency_map.gearbox_efficiency" in shipped.param_names
