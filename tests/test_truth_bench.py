@@ -361,7 +361,8 @@ def test_the_residual_floors_buses_carry_the_days_pack_and_drivetrain_form():
             "rint_battery.max_charge_c_rate", "cccv_taper.cc_c_rate",
             "constant_efficiency.motor_efficiency")}
         assert value["rint_battery.cells_series"] == pack["cells_series"]
-        assert value["rint_battery.cell_capacity_ah"] * 3 == pytest.approx(pack["capacity_ah"])
+        assert value["rint_battery.cell_capacity_ah"] * model.params[model.param_index(
+            "rint_battery.cells_parallel")] == pytest.approx(pack["capacity_ah"])
         assert value["rint_battery.max_charge_c_rate"] == pack["max_charge_c"]
         assert value["cccv_taper.cc_c_rate"] == pack["max_charge_c"]
         assert value["constant_efficiency.motor_efficiency"] == floor.MOTOR_EFFICIENCY
