@@ -309,6 +309,14 @@ def truth_day(source: str, case, folder: Path, current_voltage: bool = False,
     return load_log(log_path).profiles, json.loads(truth_path.read_text())
 
 
+def same_bus_days(case, days: int) -> list:
+    """The cases of ``days - 1`` more days of the bus of ``case`` (the truth simulator's:
+    FASTSim's cases draw their hidden effect per day)."""
+    from benchmarks.truth.cases import same_bus_case
+
+    return [same_bus_case(case, day) for day in range(1, days)]
+
+
 def named_right(expected, verdict: str | None, status: str, effects: list[str],
                 oracle: bool) -> bool:
     """Whether a day's verdict is right: the expected effect (None on a control day: no
@@ -325,12 +333,20 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     """Diagnose one truth day, calibrated, and (``ladder``) add the right effect and
     re-calibrate (worker of the pool). On an oracle day (the log carries the hidden effect's
     own power) the right effect is the library's or :data:`ORACLE`, and the ladder adds
-    :data:`ORACLE`: the hidden effect in a perfect form."""
+    :data:`ORACLE`: the hidden effect in a perfect form. With ``days`` > 1 the case's day and
+    ``days - 1`` more days of the same bus (:func:`~benchmarks.truth.cases.same_bus_case`)
+    are diagnosed together, as one bus's logs."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
-    source, case, folder, current_voltage, oracle, reference, known_mass = (
-        *job, False, False, False, False)[:7]
+    source, case, folder, current_voltage, oracle, reference, known_mass, days = (
+        *job, False, False, False, False, 1)[:8]
     profiles, truth = truth_day(source, case, Path(folder), current_voltage, oracle)
+    for other in same_bus_days(case, days):
+        more, their = truth_day(source, other, Path(folder), current_voltage, oracle)
+        profiles = [*profiles, *more]
+        truth["summary"]["effect_kwh"] += their["summary"]["effect_kwh"]
+        truth["summary"]["soc_footprint_pct"] = max(truth["summary"]["soc_footprint_pct"],
+                                                    their["summary"]["soc_footprint_pct"])
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     freedom = None
     if known_mass:  # a weighed bus: its true curb mass held (the 12 m config's mass bounds
@@ -371,8 +387,9 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "energy_interval_kwh": d.named.get("energy_interval_kwh") if d.verdict else None,
            "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
            "footprint_pct": truth.get("summary", {}).get("soc_footprint_pct"),
-           "time_s": time.perf_counter() - t0, "hours": sum(p.duration_s for p in profiles)
-           / 3600.0, "why": d.why, "range_ends": d.range_ends}
+           "days": days, "time_s": time.perf_counter() - t0,
+           "hours": sum(p.duration_s for p in profiles) / 3600.0, "why": d.why,
+           "range_ends": d.range_ends}
     expected = truth["expected_verdict"]
     row["right"] = named_right(expected, d.verdict, d.status,
                                [r["effect"] for r in d.ranking], oracle)
@@ -538,7 +555,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   controls: int | None = None, current_voltage: bool = False,
                   rows_path: Path | None = None, oracle: bool = False,
                   reference: bool = False, effects: tuple[str, ...] = (),
-                  resume: bool = False, known_mass: bool = False, ladder: bool = True) -> None:
+                  resume: bool = False, known_mass: bool = False, ladder: bool = True,
+                  days: int = 1) -> None:
     from concurrent.futures import ProcessPoolExecutor
     from functools import partial
     from multiprocessing import get_context
@@ -549,7 +567,9 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
           + (", logs with the hidden effect's own power (oracle; control days left out: "
              "they have none)" if oracle else "")
           + (", each against a normal day of the same bus (--reference)" if reference else "")
-          + (", the true curb mass held (--known-curb-mass)" if known_mass else ""))
+          + (", the true curb mass held (--known-curb-mass)" if known_mass else "")
+          + (f", {days} days of each bus diagnosed together (--days-per-bus)" if days > 1
+             else ""))
     jobs = []
     for source in sources:
         module, why = truth_module(source)
@@ -559,7 +579,11 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         if current_voltage and source != "truthsim":
             print(f"  {source}: its logs have no pack current (SoC only): skipped")
             continue
-        jobs += [(source, c, str(folder), current_voltage, oracle, reference, known_mass)
+        if days > 1 and source != "truthsim":
+            print(f"  {source}: its days draw their hidden effect each day, not per bus: "
+                  "skipped")
+            continue
+        jobs += [(source, c, str(folder), current_voltage, oracle, reference, known_mass, days)
                  for c in truth_cases(source, smoke, per_effect, controls, effects)
                  if not (oracle and c.hidden is None)]
     rows = []
@@ -685,7 +709,13 @@ def main() -> None:
                         help="out of family: report the days of these --rows files, together "
                         "(repeatable), without running them; the first file's row of a day "
                         "is kept")
+    parser.add_argument("--days-per-bus", type=int, default=1,
+                        help="out of family: diagnose N days of each case's bus together "
+                        "(its day and N - 1 more, the same effect hidden; the truth "
+                        "simulator's days)")
     args = parser.parse_args()
+    if args.days_per_bus < 1:
+        parser.error(f"--days-per-bus must be 1 or more, not {args.days_per_bus}")
     parts = set(args.part or ("speed", "hidden", "bmw", "twizy"))
     if args.from_rows:
         rows = {}
@@ -700,7 +730,7 @@ def main() -> None:
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
                       args.oracle, args.reference, tuple(args.effect), args.resume,
-                      args.known_curb_mass, not args.no_ladder)
+                      args.known_curb_mass, not args.no_ladder, args.days_per_bus)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

@@ -376,3 +376,54 @@ def test_the_residual_floors_buses_carry_the_days_pack_and_drivetrain_form():
         "lfp_a123"
     shipped = floor.library_bus("shipped", None).build(0.1)
     assert "efficiency_map.gearbox_efficiency" in shipped.param_names
+
+
+def test_days_of_one_bus_are_diagnosed_together_with_their_effect_energy_summed(
+        tmp_path, monkeypatch, capsys):
+    """``--days-per-bus 3``: a case's day and two more days of its bus go to one diagnosis,
+    and the truth's effect energy is theirs together; FASTSim's days, which draw their hidden
+    effect each day, are skipped."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import pandas as pd
+
+    if _available("truthsim"):
+        pytest.skip(_available("truthsim"))
+    made = []
+
+    class Source:  # a stand-in truth source: a standing bus, its effect 1.5 kWh a day
+        @staticmethod
+        def generate(case):
+            made.append((case.case_id, case.bus_seed))
+            log = pd.DataFrame({"time_s": np.arange(360, dtype=float), "speed_kmh": 0.0,
+                                "soc_pct": np.linspace(80.0, 79.0, 360)})
+            return log, {"start_clock_h": case.start_clock_h, "hours": case.hours,
+                         "expected_verdict": "passenger_mass", "strength": {},
+                         "summary": {"effect_kwh": 1.5, "soc_footprint_pct": len(made)}}
+
+    seen = []
+
+    def diagnose(bus, profiles, **options):
+        seen.append(len(profiles))
+        return SimpleNamespace(verdict=None, status="outside library", mode_clue=None,
+                               to_json=lambda: {"modes": {}, "clues": []}, resistance=None,
+                               ranking=[], named={}, why="", range_ends={})
+
+    case = replace(bench.truth_cases("truthsim", smoke=False, per_effect=1, controls=0,
+                                     effects=("passenger_mass",))[0], hours=0.1)
+    monkeypatch.setattr(bench, "truth_module", lambda source: (Source, ""))
+    monkeypatch.setattr(bench, "diagnose", diagnose)
+    row = bench.diagnose_truth_day(("truthsim", case, str(tmp_path), False, False, False,
+                                    False, 3), ladder=False)
+    assert seen == [3] and row["days"] == 3
+    assert [m[0] for m in made] == [case.case_id, f"{case.case_id}_day1", f"{case.case_id}_day2"]
+    assert {m[1] for m in made[1:]} == {case.seed}
+    assert row["truth_kwh"] == pytest.approx(4.5) and row["footprint_pct"] == 3
+    assert row["hours"] == pytest.approx(3 * 359 / 3600, abs=0.01)  # three 6-min logs
+    reported = []
+    monkeypatch.setattr(bench, "report", lambda rows, *args: reported.append(rows))
+    bench.out_of_family(tmp_path, smoke=False, sources=("fastsim",), per_effect=1, controls=0,
+                        days=3)
+    assert reported == [[]]
+    assert "fastsim: its days draw their hidden effect each day" in capsys.readouterr().out

@@ -221,6 +221,31 @@ def test_a_reference_day_is_a_normal_day_of_the_same_bus():
                                                                  case.seed + 1, case.seed + 1]
 
 
+@pytest.mark.parametrize("hidden", ["cabin_heating", "cold_battery"])
+def test_another_day_of_a_bus_keeps_the_bus_and_its_effect_and_draws_the_day(hidden):
+    """``--days-per-bus``: a same-bus day has the case's base parameters and the hidden
+    effect's values that belong to the bus (a cabin's envelope, a pack's heat capacity); the
+    plan, the start SoC and a cold pack's start above the air are the day's own."""
+    case = truth_cases.cases(1, 0, effects=(hidden,))[0]
+    days = [dataclasses.replace(c, hours=0.3)
+            for c in (case, truth_cases.same_bus_case(case, 1), truth_cases.same_bus_case(case, 2))]
+    assert len({c.case_id for c in days}) == 3 and len({c.seed for c in days}) == 3
+    assert {c.bus_seed for c in days[1:]} == {case.seed}
+    runs = [truth_cases.day_trace(c) for c in days]
+    (plan_a, base_a, ph_a, day_a, _), (plan_b, base_b, ph_b, day_b, _) = runs[:2]
+    preview = "driver_preview_s"
+    assert {k: v for k, v in base_a.items() if k != preview} == \
+        {k: v for k, v in base_b.items() if k != preview}
+    assert not np.array_equal(plan_a["speed_target_mps"], plan_b["speed_target_mps"])
+    assert day_a["soc0_frac"] != day_b["soc0_frac"]
+    bus_level = set(ph_a) - truth_cases.DAY_LEVEL
+    assert bus_level and all(ph_a[k] == ph_b[k] for k in bus_level)
+    if hidden == "cold_battery":  # the night's: another start above the air each day
+        assert len({r[2]["start_offset_k"] for r in runs}) == 3
+    with pytest.raises(ValueError, match="day must be 1 or more"):
+        truth_cases.same_bus_case(case, 0)
+
+
 def test_a_short_case_is_byte_reproducible():
     case = dataclasses.replace(truth_cases.cases(1, 0, effects=("passenger_mass",))[0],
                                hours=0.4)

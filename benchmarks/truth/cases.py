@@ -240,6 +240,32 @@ def reference_case(case: Case) -> Case:
                    bus_seed=case.seed)
 
 
+def same_bus_case(case: Case, day: int) -> Case:
+    """Another service day (``day`` = 1, 2, ...) of the bus of ``case``, with the same hidden
+    effect: its base draw, route, pack, climate and hours, another plan, driver, start SoC
+    and log degradation. What belongs to the bus, not the day (a cabin's envelope, the BMS's
+    derating SoC, the lights, the passengers' mass, a compressor or chiller) is the first
+    day's; a cold pack's start above the air is the night's, drawn per day
+    (:data:`DAY_LEVEL`)."""
+    if day < 1:
+        raise ValueError(f"day must be 1 or more (the case itself is day 0), not {day}")
+    return replace(case, case_id=f"{case.case_id}_day{day}", seed=case.seed + 1000 * day,
+                   bus_seed=case.seed if case.bus_seed is None else case.bus_seed)
+
+
+DAY_LEVEL = frozenset({"start_offset_k", "pack_temp0_degc"})
+"""A hidden effect's values that change from day to day on one bus (a cold pack's start above
+the air, after the night's depot); its other values are the bus's (:func:`same_bus_case`)."""
+
+
+def _bus_physical(case: Case, plan: pd.DataFrame) -> dict:
+    """The hidden effect's values of the bus of ``case``: as its first day drew them (the
+    physics stream of ``bus_seed``, drawn in the same order as :func:`day_trace` draws)."""
+    rng = np.random.default_rng(np.random.SeedSequence(case.bus_seed).spawn(4)[2])
+    rng.uniform(1.5, 2.5)  # that day's driver preview
+    return _physical(case.hidden, rng, plan, case.chemistry)[0]
+
+
 def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:
     """The truth simulator's run of a case: its plan, the bus's base parameters, the hidden
     effect's physical values, the day's options and the 1 Hz trace (every signal, before the
@@ -256,6 +282,9 @@ def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]
         phys_rng = np.random.default_rng(phys_ss)
         base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
         ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
+        if case.bus_seed is not None and case.hidden is not None:  # another day of one bus
+            ph.update({k: v for k, v in _bus_physical(case, plan).items()
+                       if k not in DAY_LEVEL})
         trace = simulate(plan, base, case.hidden, ph, **day)
         if trace["soc_frac"].min() >= MIN_SOC_FRAC:
             return plan, base, ph, day, trace
