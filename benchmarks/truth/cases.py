@@ -258,12 +258,13 @@ DAY_LEVEL = frozenset({"start_offset_k", "pack_temp0_degc"})
 the air, after the night's depot); its other values are the bus's (:func:`same_bus_case`)."""
 
 
-def _bus_physical(case: Case, plan: pd.DataFrame) -> dict:
-    """The hidden effect's values of the bus of ``case``: as its first day drew them (the
-    physics stream of ``bus_seed``, drawn in the same order as :func:`day_trace` draws)."""
-    rng = np.random.default_rng(np.random.SeedSequence(case.bus_seed).spawn(4)[2])
-    rng.uniform(1.5, 2.5)  # that day's driver preview
-    return _physical(case.hidden, rng, plan, case.chemistry)[0]
+def _physics_draw(stream: np.random.SeedSequence, case: Case,
+                  plan: pd.DataFrame) -> tuple[float, dict, dict]:
+    """A day's draws from a physics stream: the driver's preview [s], then the hidden
+    effect's values and the day options (:func:`_physical`)."""
+    rng = np.random.default_rng(stream)
+    preview_s = float(rng.uniform(1.5, 2.5))
+    return (preview_s, *_physical(case.hidden, rng, plan, case.chemistry))
 
 
 def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:
@@ -279,12 +280,11 @@ def day_trace(case: Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]
     for chargers in ((full,) if case.hidden == "regen_soc_limit" else ({}, full)):
         plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
                          case.route, climate=case.climate, **chargers)
-        phys_rng = np.random.default_rng(phys_ss)
-        base["driver_preview_s"] = float(phys_rng.uniform(1.5, 2.5))
-        ph, day = _physical(case.hidden, phys_rng, plan, case.chemistry)
-        if case.bus_seed is not None and case.hidden is not None:  # another day of one bus
-            ph.update({k: v for k, v in _bus_physical(case, plan).items()
-                       if k not in DAY_LEVEL})
+        base["driver_preview_s"], ph, day = _physics_draw(phys_ss, case, plan)
+        if case.bus_seed is not None and case.hidden is not None:  # another day of one bus:
+            # the effect's values as the bus's first day drew them
+            first = _physics_draw(np.random.SeedSequence(case.bus_seed).spawn(4)[2], case, plan)
+            ph.update({k: v for k, v in first[1].items() if k not in DAY_LEVEL})
         trace = simulate(plan, base, case.hidden, ph, **day)
         if trace["soc_frac"].min() >= MIN_SOC_FRAC:
             return plan, base, ph, day, trace
