@@ -22,6 +22,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import importlib.util
+import re
 import sys
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -253,6 +254,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+# YAML 1.2's floats: PyYAML (YAML 1.1) reads ``3e-4`` and ``1e6``, without a dot, as strings
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789"))
+
+
 def _yaml_problem(exc: yaml.YAMLError) -> str:
     """One line: the problem and where (``line 12, column 5``)."""
     mark = getattr(exc, "problem_mark", None)
@@ -267,6 +274,8 @@ def read_yaml(path: Path) -> dict:
         data = yaml.load(Path(path).read_text(), Loader=_UniqueKeyLoader)  # a SafeLoader
     except FileNotFoundError:
         raise ConfigError(f"Config file {path} does not exist.") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path} is a folder. Fix: give a YAML file in it.") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path} is not valid YAML: {_yaml_problem(exc)}.") from None
     if not isinstance(data, dict):
@@ -277,7 +286,7 @@ def read_yaml(path: Path) -> dict:
 def find_config(name: str | Path, kind: str = "bus") -> Path:
     """A config path: as given, or ``configs/<kind>/<name>.yaml`` in the working folder or
     among the shipped configs."""
-    path = Path(name)
+    path = paths.here_or_shipped(name)
     if path.suffix in (".yaml", ".yml"):
         if path.exists():
             return path
@@ -286,6 +295,9 @@ def find_config(name: str | Path, kind: str = "bus") -> Path:
         candidate = base / f"{name}.yaml"
         if candidate.exists():
             return candidate
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder. Fix: give a YAML file in it, or a {kind} "
+                          f"config's name ({', '.join(paths.config_names(kind))}).")
     raise unknown_name(f"{kind} config", str(name), paths.config_names(kind))
 
 

@@ -127,7 +127,7 @@ RANGES: dict[str, Range] = {r.name: r for r in (
           "(plugging in and out); at most layover_min.", given="env `min_layover_min`"),
     Range("charger_kw", "kW", 0.0, 1000.0, "Charger rating.", open_low=True,
           given="bus `service.layover_charger_kw`, `service.depot_charger_kw`; env "
-          "`charger_kw`"),
+          "`charger_kw`; study `terminal_charger_kw`, `depot_charger_kw`"),
     Range("population", "1", 2.0, 1000.0, "iSOPT population (default 11).",
           given="`calibrate --population`"),
     Range("iterations", "1", 1.0, 100_000.0, "iSOPT iterations (default 50).",

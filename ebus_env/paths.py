@@ -43,6 +43,17 @@ def trained(name: str) -> Path:
     return _shipped("trained") / name
 
 
+def here_or_shipped(path: str | Path) -> Path:
+    """``path`` itself where it exists; else, for a relative path into a shipped folder
+    (``configs/bus/12m.yaml``, ``data/measured/...``), the shipped file, so that the commands
+    the documentation gives work from any folder once the wheel is installed."""
+    path = Path(path)
+    if path.exists() or path.is_absolute() or not path.parts or path.parts[0] not in _SHIPPED:
+        return path
+    shipped = _shipped(path.parts[0]).joinpath(*path.parts[1:])
+    return shipped if shipped.exists() else path
+
+
 def checkout() -> Path | None:
     """Root of the source checkout when running from one (``examples/`` and ``tests/`` exist
     only there), else None."""

@@ -172,6 +172,20 @@ def test_a_duplicated_yaml_key_is_an_error_with_its_line(tmp_path):
         load_bus(path)
 
 
+def test_yaml_numbers_in_exponent_form_are_numbers(tmp_path):
+    """YAML 1.1 (PyYAML) reads ``3e-4`` as a string; a config must not turn it into an error
+    about a string where a number was written."""
+    from ebus_env.config import read_yaml
+
+    path = tmp_path / "n.yaml"
+    path.write_text("a: 3e-4\nb: 1E6\nc: -2.5e+1\nd: 12\ne: 1e\n")
+    assert read_yaml(path) == {"a": 3e-4, "b": 1e6, "c": -25.0, "d": 12, "e": "1e"}
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("params: {aero_drag: {drag_coef: 6.5e-1}}\n")
+    model = load_bus("12m", overlays=[overlay]).build()
+    assert model.params[model.param_index("aero_drag.drag_coef")] == 0.65
+
+
 def test_the_shipped_bus_without_layovers_is_accepted():
     assert load_bus("bmw_i3").service.layover_min == 0
 

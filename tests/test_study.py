@@ -69,6 +69,10 @@ def test_example_study_loads_into_its_grid():
     ({"lines.0.bus": "13m"}, "13m"),
     ({"days.count": 1.5}, "days.count = 1.5"),
     ({"strategies.0.decision_s": 70}, "divisor of 900"),
+    ({"days.seed": -1}, "days.seed = -1: give an integer >= 0"),
+    ({"infrastructure.depot_charger_kw": 5000},
+     "infrastructure.depot_charger_kw = 5000.0 is outside the accepted range (0, 1,000] kW"),
+    ({"strategies.1.pulse_duty": True}, "pulse_duty = True: give a number"),
 ])
 def test_bad_study_is_one_clear_line_before_any_work(changes, message, tmp_path):
     with pytest.raises(ConfigError) as err:
@@ -82,6 +86,19 @@ def test_bad_study_file_names_the_file(tmp_path):
     path.write_text(yaml.safe_dump(small(**{"lines.0.colour": "red"})))
     with pytest.raises(ConfigError, match=rf"^{path}: lines\[0\]: unknown key 'colour'"):
         load_study(path)
+    path.write_text("name: s\nlines: [\n")
+    with pytest.raises(ConfigError, match=rf"^{path} is not valid YAML: .* at line 3"):
+        load_study(path)
+    with pytest.raises(ConfigError, match=rf"^{tmp_path} is a folder"):
+        load_study(tmp_path)
+
+
+def test_a_shipped_study_is_found_by_name_or_by_its_path_in_the_docs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a folder without configs/, as after installing the wheel
+    assert load_study("example") == load_study("configs/studies/example.yaml") == load_study(
+        EXAMPLE)
+    with pytest.raises(ConfigError, match="Unknown studies config 'exampel'. Did you mean"):
+        load_study("exampel")
 
 
 # -- costs -------------------------------------------------------------------------------------
@@ -216,8 +233,12 @@ def test_another_study_in_the_folder_is_not_reused(tmp_path):
     other = load_study(small(**{"infrastructure.terminal_chargers": 2, "days.count": 1,
                                 "costs.interest_rate": 0.08}))
     said = []
-    run_study(other, tmp_path, resume=True, say=said.append)
-    assert "0 already done, 2 to run" in said[0]
+    rows = run_study(other, tmp_path, resume=True, say=said.append)
+    assert "2 scenario(s) in" in said[0] and "left out of its summary" in said[0]
+    assert "0 already done, 2 to run" in said[1]
+    # the summary holds this study's two scenarios, not the other study's rows beside them
+    assert len(list(rows_dir(tmp_path).glob("*.parquet"))) == 4
+    assert len(rows) == 2 and set(rows["scenario_key"]) == {s.key(other) for s in scenarios(other)}
 
 
 # -- summary -----------------------------------------------------------------------------------
@@ -268,6 +289,19 @@ def test_study_command_runs_and_refuses_a_bad_file(tmp_path):
     result = runner.invoke(app, ["study", str(bad), "--out", str(tmp_path / "bad_out")])
     assert result.exit_code != 0 and "costs: missing currency" in result.output
     assert not (tmp_path / "bad_out").exists()  # nothing started
+    # an --out folder that holds the study file would have its study.yaml written over it
+    inside = tmp_path / "inside"
+    inside.mkdir()
+    (inside / "study.yaml").write_bytes(good.read_bytes() + b"# my notes\n")
+    before = (inside / "study.yaml").read_bytes()
+    result = runner.invoke(app, ["study", str(inside / "study.yaml"), "--out", str(inside)])
+    assert result.exit_code != 0 and "holds the input" in result.output
+    assert (inside / "study.yaml").read_bytes() == before and not (inside / "rows").exists()
+    result = runner.invoke(app, ["study", str(good), "--out", str(good)])
+    assert result.exit_code != 0 and "is a file, not a folder" in result.output
+    result = runner.invoke(app, ["study", str(good), "--out", str(tmp_path / "w"),
+                                 "--workers", "0"])
+    assert result.exit_code != 0 and "--workers 0: give a number of threads" in result.output
 
 
 def test_a_policy_that_holds_the_baseline_equals_the_fixed_baseline(monkeypatch):

@@ -17,7 +17,7 @@ import yaml
 
 from ebus_env.errors import ConfigError
 from ebus_env.outputs import write_text
-from ebus_env.study.results import finished, read_results, write_rows
+from ebus_env.study.results import finished, read_results, rows_dir, write_rows
 from ebus_env.study.scenarios import scenarios
 from ebus_env.study.spec import StudySpec
 
@@ -40,10 +40,17 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
         scenarios than threads. None: every CPU (``$EBUS_THREADS``).
     """
     out = Path(out)
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers {workers}: give a number of threads or CPUs >= 1, or "
+                          "leave it out for every CPU.")
     done = finished(out)
     if done and not resume:
         raise ConfigError(f"{out} already holds the rows of {len(done)} scenario(s): add "
                           "--resume to finish that study, or give another --out folder.")
+    keys = {s.key(spec) for s in scenarios(spec)}
+    if done - keys:
+        say(f"{len(done - keys)} scenario(s) in {rows_dir(out)} are not in this study (another "
+            "study, or this one before an edit): left out of its summary")
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / "study.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
     todo = [s for s in scenarios(spec) if s.key(spec) not in done]
@@ -75,7 +82,7 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
               use_ray=use_ray, address=address, workers=workers)
     if todo:
         say(f"ran {len(todo)} scenario(s) in {time.perf_counter() - t0:.1f} s")
-    return read_results(out)
+    return read_results(out, keys)
 
 
 def map_tasks(task: Callable, args_list: list[tuple], on_result: Callable, *,
@@ -120,10 +127,12 @@ def connect_ray(address: str | None = None, workers: int | None = None):
 
 
 def _map_ray(task, args_list, on_result, address, workers) -> None:
-    import ray as ray_module
-
-    ours = not ray_module.is_initialized()  # a runtime this call joins, it also leaves
-    ray = connect_ray(address, workers)
+    try:
+        import ray
+    except ImportError:
+        ray = None
+    ours = ray is None or not ray.is_initialized()  # a runtime this call joins, it also leaves
+    ray = connect_ray(address, workers)  # without Ray: the error that says how to install it
     try:
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(task)
         pending = {remote.remote(*args): args for args in args_list}

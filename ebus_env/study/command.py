@@ -12,11 +12,13 @@ CONSOLE = ("scenario", "cost_per_km", "site_peak_kw", "site_peak_15min_kw", "low
 def study_command(study_file: Path, out: Path, resume: bool, use_ray: bool, address: str | None,
                   workers: int | None, console) -> Path:
     """Check the study, run what is left of it, write ``summary.csv`` and ``report.html``."""
+    from ebus_env.outputs import check_folder
     from ebus_env.study.backends import run_study
     from ebus_env.study.spec import load_study
     from ebus_env.study.summary import COLUMNS, table_rows, write_summary
 
     spec = load_study(study_file)  # every check before any work
+    check_folder(out, "--out", inputs=[Path(spec.source)])
     rows = run_study(spec, out, resume=resume, use_ray=use_ray or address is not None,
                      address=address, workers=workers,
                      say=lambda line: console.print(line, highlight=False))

@@ -8,6 +8,7 @@ pandas as one table: ``pd.read_parquet("study/rows")``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
@@ -39,9 +40,11 @@ def write_rows(out: str | Path, key: str, rows: list[dict]) -> Path:
     return path
 
 
-def read_results(out: str | Path) -> pd.DataFrame:
-    """Every finished scenario's rows, in scenario then day order."""
-    files = sorted(rows_dir(out).glob("*.parquet"))
+def read_results(out: str | Path, keys: Iterable[str] | None = None) -> pd.DataFrame:
+    """The rows of the finished scenarios (those among ``keys`` only, where given: a study's
+    own, without another study's rows in the same folder), in scenario then day order."""
+    done = finished(out) if keys is None else finished(out) & set(keys)
+    files = sorted(rows_dir(out) / f"{key}.parquet" for key in done)
     if not files:
         return pd.DataFrame()
     frame = pd.concat([pd.read_parquet(p) for p in files], ignore_index=True)

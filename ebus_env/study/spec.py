@@ -26,12 +26,11 @@ import itertools
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-import yaml
-
 from ebus_env.envs.climate import climate_of
 from ebus_env.envs.spec import ACTIONS, EnvConfig
 from ebus_env.errors import ConfigError
-from ebus_env.study.checks import check_keys, positive
+from ebus_env.inputs import check
+from ebus_env.study.checks import check_keys, is_number, positive
 from ebus_env.study.costs import CostModel
 
 LINE_KEYS = {"name", "buses", "headway_min"}  # besides EnvConfig's keys
@@ -132,17 +131,18 @@ class StudySpec:
 
 
 def load_study(source: str | Path | dict) -> StudySpec:
-    """Read and check a study (a YAML path or a mapping); any problem is one ConfigError line
-    naming the file and key, before any simulation."""
+    """Read and check a study (a YAML path, a shipped study's name such as ``example``, or a
+    mapping); any problem is one ConfigError line naming the file and key, before any
+    simulation."""
     where = "study"
     if isinstance(source, dict):
         data = source
     else:
-        path = Path(source)
+        from ebus_env.config import find_config, read_yaml
+
+        path = find_config(source, kind="studies")  # a path, or a shipped study's name
         where = str(path)
-        if not path.exists():
-            raise ConfigError(f"No study file {path}; see configs/studies/example.yaml.")
-        data = yaml.safe_load(path.read_text()) or {}
+        data = read_yaml(path)
     try:
         return _parse(data, where)
     except ConfigError as e:
@@ -167,6 +167,7 @@ def _parse(data: dict, where: str) -> StudySpec:
     check_keys(days, DAY_KEYS, "days")
     days = Days(**days)
     positive(days.count, "days.count", integer=True)
+    positive(days.seed, "days.seed", integer=True, zero=True)
     for key in ("traffic_random_frac", "passengers_random_frac", "ambient_random_k"):
         positive(getattr(days, key), f"days.{key}", zero=True)
     if days.traffic_random_frac >= 0.8:
@@ -236,6 +237,8 @@ def _infrastructure(data, lines) -> tuple[Infrastructure, ...]:
             keys[k] = positive(keys[k], f"infrastructure.{k}", integer=True, zero=True)
         for k in ("terminal_charger_kw", "depot_charger_kw", "site_limit_kw"):
             keys[k] = positive(keys[k], f"infrastructure.{k}")
+        for k in ("terminal_charger_kw", "depot_charger_kw"):
+            check("charger_kw", keys[k], f"infrastructure.{k}")
         out.append(Infrastructure(**keys))
     if any(o.terminal_chargers + o.depot_chargers == 0 for o in out):
         raise ConfigError("infrastructure: an option with no terminal and no depot charger "
@@ -264,7 +267,7 @@ def _strategies(items) -> tuple[Strategy, ...]:
         for a in ACTIONS:
             if a.name in item:
                 value = item[a.name]
-                if not isinstance(value, int | float) or not a.low <= value <= a.high:
+                if not is_number(value) or not a.low <= value <= a.high:
                     raise ConfigError(f"strategies[{i}].{a.name} = {value!r}: give a number in "
                                       f"[{a.low:g}, {a.high:g}] {a.unit}.")
                 settings[a.name] = float(value)
