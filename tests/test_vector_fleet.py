@@ -214,3 +214,78 @@ def test_fleet_refuses_stop_to_stop_decisions():
     with pytest.raises(ConfigError, match="decide_at_stops"):
         gym.make("EBusFleet-v0", lines=[{"config": "sort2_day", "buses": 2,
                                          "decide_at_stops": True}])
+
+
+def test_fleet_refuses_to_step_before_reset_and_after_the_episode_ended():
+    """As EBus-v0: a step before reset() or after the day ended is an EnvError, not a silent
+    simulation past the service day; reset() starts a new day."""
+    from ebus_env.errors import EnvError
+
+    env = fleet(lines=[{"config": "sort2_day", "buses": 3, "service_h": 0.3}], chargers=1)
+    a = np.zeros(env.action_space.shape, np.float32)
+    with pytest.raises(EnvError, match=r"Call reset\(\) before step\(\)"):
+        env.unwrapped.step(a)
+    env.reset(seed=0)
+    for _ in range(100):
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            break
+    assert terminated and not truncated
+    u = env.unwrapped
+    decisions = [line.decisions().copy() for line in u.lines]
+    for _ in range(3):  # every further step is refused and simulates nothing
+        with pytest.raises(EnvError, match=r"after the episode ended.*call reset\(\)"):
+            env.step(a)
+    for line, before in zip(u.lines, decisions, strict=True):
+        np.testing.assert_array_equal(line.decisions(), before)
+    first, _ = env.reset(seed=0)
+    obs, _, terminated, _, _ = env.step(a)  # a new day runs again
+    assert not terminated and not np.array_equal(obs, first)
+
+
+@pytest.mark.parametrize("mode", ["rgb_array", "human"])
+def test_fleet_refuses_a_render_mode_by_name(mode):
+    """The fleet declares no render modes (metadata render_modes is empty): a render_mode
+    is refused as such, not as an unknown fleet config key."""
+    from ebus_env.errors import ConfigError
+
+    assert fleet().metadata["render_modes"] == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gymnasium's own warning, before the env's error
+        with pytest.raises(ConfigError) as info:
+            fleet(render_mode=mode)
+    said = str(info.value)
+    assert f"render_mode '{mode}'" in said and "no render modes" in said
+    assert "Unknown fleet config key" not in said
+    env = fleet(render_mode=None)
+    assert env.render_mode is None
+    with pytest.warns(UserWarning, match="does not render"):
+        assert env.unwrapped.render() is None
+
+
+@pytest.mark.parametrize("num_envs", [0, -1, 2.5, 2.0, "4", True, None])
+def test_vector_env_refuses_a_bad_num_envs_by_name(num_envs):
+    from ebus_env.envs.sb3 import SB3VecEnv
+    from ebus_env.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"num_envs = .*whole number >= 1"):
+        gym.make_vec("EBus-v0", num_envs=num_envs, **SHORT)
+    with pytest.raises(ConfigError, match=r"num_envs = .*whole number >= 1"):
+        SB3VecEnv(num_envs=num_envs, **SHORT)
+
+
+def test_vector_env_takes_a_numpy_integer_and_refuses_out_of_order_use():
+    from ebus_env.errors import ConfigError, EnvError
+
+    venv = EBusVectorEnv(num_envs=np.int64(2), **SHORT)
+    assert venv.num_envs == 2 and type(venv.num_envs) is int
+    with pytest.raises(EnvError, match=r"Call reset\(\) before step\(\)"):
+        venv.step(np.zeros((2, 5), np.float32))
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape == (2, 16)
+    with pytest.raises(ConfigError, match="max_episode_steps = 0"):
+        EBusVectorEnv(num_envs=2, max_episode_steps=0, **SHORT)
+    with pytest.raises(ConfigError, match="autoreset_mode = 'Disabled'.*SAME_STEP"):
+        EBusVectorEnv(num_envs=2, autoreset_mode="Disabled", **SHORT)
+    with pytest.raises(ConfigError, match="autoreset_mode = 'sometimes'"):
+        EBusVectorEnv(num_envs=2, autoreset_mode="sometimes", **SHORT)

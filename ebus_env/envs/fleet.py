@@ -15,7 +15,7 @@ from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
 from ebus_env.envs.reference import ROW_NAMES
 from ebus_env.envs.reward import TERMS
 from ebus_env.envs.spec import ACTIONS, EnvConfig, bus_info, checked_actions, config_keys, physical, reward_of
-from ebus_env.errors import ConfigError
+from ebus_env.errors import ConfigError, EnvError
 
 SITE_OBSERVATIONS = (  # name, unit, low, high
     ("site_grid_kw", "kW", 0.0, 1e4),
@@ -157,6 +157,8 @@ class EBusFleetEnv(gym.Env):
     ``config`` names a file in ``configs/env`` (or a path or a dict) of :class:`FleetConfig`.
     ``info["site_load_kw"]``: the site's grid power per decision so far [kW];
     ``info["buses"]``: each bus's ``EBus-v0`` info.
+    ``render_mode``: only ``None`` (``metadata["render_modes"]`` is empty: the fleet does not
+    render; ``info`` holds the site's load and each bus's figures).
 
     ## Version History
     * v0: first version.
@@ -164,7 +166,14 @@ class EBusFleetEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, config: str | Path | dict | None = None, **overrides):
+    def __init__(self, config: str | Path | dict | None = None, render_mode: str | None = None,
+                 **overrides):
+        if render_mode is not None:
+            raise ConfigError(f"render_mode '{render_mode}': EBusFleet-v0 has no render modes "
+                              f"(metadata render_modes is {self.metadata['render_modes']}); leave "
+                              "render_mode out (None) and read the site's load from "
+                              "info['site_load_kw'] and each bus's figures from info['buses'].")
+        self.render_mode = render_mode
         self.config = cfg = FleetConfig.load(config, **overrides)
         self.lines: list[BusBatch] = []
         for line_cfg, n in cfg.line_configs():
@@ -192,7 +201,7 @@ class EBusFleetEnv(gym.Env):
         self.efficiency = np.concatenate([  # each bus's charger efficiency
             np.full(line.n, line.params[0, line.efficiency_at]) for line in self.lines])
         self._edges = np.cumsum([0] + [line.n for line in self.lines])
-        self._started = False
+        self._started = self._ended = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -204,12 +213,15 @@ class EBusFleetEnv(gym.Env):
         self._site_kw: list[float] = []
         self._peak_kw = 0.0
         self._decision = 0
-        self._started = True
+        self._started, self._ended = True, False
         return self._observe(), {"observation_names": self.observation_names}
 
     def step(self, action):
         if not self._started:
-            raise RuntimeError("Call reset() before step().")
+            raise EnvError("Call reset() before step().")
+        if self._ended:
+            raise EnvError("step() after the episode ended (terminated): call reset() to "
+                           "start a new day.")
         values = physical(checked_actions(action, self.action_space.shape, self.action_names,
                                           "EBusFleet-v0").reshape(self.n, len(ACTIONS)))
         for line, lo, hi in zip(self.lines, self._edges[:-1], self._edges[1:], strict=True):
@@ -231,7 +243,7 @@ class EBusFleetEnv(gym.Env):
         reward, costs = self.reward_fn(site[None])
         ended = [line.ended() for line in self.lines]
         depleted = any(d.any() for d, _ in ended)
-        terminated = depleted or all(e.all() for _, e in ended)
+        terminated = self._ended = bool(depleted or all(e.all() for _, e in ended))
         info = {"reward_terms": dict(zip(TERMS, costs[0].tolist(), strict=True)),
                 "site_grid_kw": site_kw, "site_peak_kw": self._peak_kw,
                 "site_limit_kw": self.config.site_limit_kw,
@@ -241,6 +253,12 @@ class EBusFleetEnv(gym.Env):
                           for line, lo in zip(self.lines, self._edges[:-1], strict=True)
                           for b in range(line.n)]}
         return self._observe(), float(reward[0]), terminated, False, info
+
+    def render(self):
+        gym.logger.warn("EBusFleet-v0 does not render (metadata render_modes is empty): the "
+                        "site's load is in info['site_load_kw'], each bus's figures in "
+                        "info['buses'].")
+        return None
 
     def _share_site(self) -> None:
         lines, at = self.lines, self._charger_rows

@@ -32,7 +32,7 @@ class SB3VecEnv(VecEnv):
     def __init__(self, num_envs: int = 8, config=None, **overrides):
         self.env = EBusVectorEnv(num_envs=num_envs, config=config,
                                  autoreset_mode=AutoresetMode.SAME_STEP, **overrides)
-        super().__init__(num_envs, self.env.single_observation_space,
+        super().__init__(self.env.num_envs, self.env.single_observation_space,  # checked
                          self.env.single_action_space)
         self._actions: np.ndarray | None = None
 

@@ -8,6 +8,7 @@ more sub-envs), not a loop over single envs. Sub-env ``i`` of ``reset(seed=s)`` 
 
 from __future__ import annotations
 
+from numbers import Integral
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,15 @@ from ebus_env.envs.spec import (
     reward_of,
     spaces,
 )
+from ebus_env.errors import ConfigError, EnvError
+
+
+def positive_count(name: str, value, example: str) -> int:
+    """``value`` as an int >= 1 (a Python or numpy integer, not a bool), or a clear error
+    naming ``name`` and the fix."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
+        raise ConfigError(f"{name} = {value!r}: must be a whole number >= 1 ({example}).")
+    return int(value)
 
 
 class EBusVectorEnv(VectorEnv):
@@ -47,9 +57,18 @@ class EBusVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, config: str | Path | dict | None = None,
                  max_episode_steps: int = MAX_DECISIONS,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides):
-        mode = AutoresetMode(autoreset_mode)
-        if mode == AutoresetMode.DISABLED:
-            raise ValueError("EBusVectorEnv autoresets: use NEXT_STEP or SAME_STEP.")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            mode = None
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise ConfigError(f"autoreset_mode = {autoreset_mode!r}: EBusVectorEnv autoresets; "
+                              "use AutoresetMode.NEXT_STEP or AutoresetMode.SAME_STEP.")
+        num_envs = positive_count("num_envs", num_envs, "the number of sub-envs, e.g. "
+                                  "gymnasium.make_vec('EBus-v0', num_envs=8)")
+        max_episode_steps = positive_count("max_episode_steps", max_episode_steps,
+                                           f"decisions before truncation; the default is "
+                                           f"{MAX_DECISIONS}")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.config = cfg = EnvConfig.load(config, **overrides)
         self.num_envs = num_envs
@@ -73,7 +92,7 @@ class EBusVectorEnv(VectorEnv):
         elif len(seed) == self.num_envs:
             seeds = list(seed)
         else:
-            raise ValueError(f"reset(seed=...) takes an int or {self.num_envs} seeds, got "
+            raise ConfigError(f"reset(seed=...) takes an int or {self.num_envs} seeds, got "
                              f"{len(seed)}.")
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
         for b in range(self.num_envs):
@@ -85,7 +104,7 @@ class EBusVectorEnv(VectorEnv):
 
     def step(self, actions):
         if not self._rngs:
-            raise RuntimeError("Call reset() before step().")
+            raise EnvError("Call reset() before step().")
         values = physical(checked_actions(actions, self.action_space.shape, self.action_names,
                                           "EBusVectorEnv"))
         buses = self.buses
