@@ -53,6 +53,12 @@ class BusChoice:
         """The files this choice reads: the bus config, the overlays, the effect files."""
         return _inputs([bus.path], self.overlays, effects=self.with_)
 
+    def options(self) -> str:
+        """This choice as command-line options (``--bus 12m --without cabin_hvac ...``)."""
+        return " ".join([f"--bus {self.name}", *(f"--with {w}" for w in self.with_ or []),
+                         *(f"--without {w}" for w in self.without or []),
+                         *(f"--overlay {o}" for o in self.overlays or [])])
+
 
 @dataclass(frozen=True)
 class LogHandling:
@@ -105,8 +111,12 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
         if "=" not in item or "." not in item.split("=", 1)[0]:
             raise ConfigError(f"--set needs effect.param=value, got '{item}'.")
         key, value = item.split("=", 1)
+        key = key.strip()
+        if key in out:
+            raise ConfigError(f"--set {key} is given twice ({out[key]:g} and {value}): keep "
+                              "one.")
         try:
-            out[key.strip()] = float(value)
+            out[key] = float(value)
         except ValueError:
             raise ConfigError(f"--set {key}: '{value}' is not a number.") from None
     return out
@@ -265,6 +275,8 @@ def _load_frac(load: str) -> float:
 def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hours,
               mean_speed_kmh, ambient_degc, soc_start_pct, load, set_, dt_s, out, plot,
               json_path):
+    import numpy as np
+
     from ebus_env.errors import ConfigError
     from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES
@@ -295,12 +307,21 @@ def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hour
     model = bus.build(dt_s)
     overrides = _overrides(set_)
     if load is not None:
+        if "passenger_load.load_frac" in overrides:
+            raise ConfigError("--load and --set passenger_load.load_frac both set the passenger "
+                              "load: keep one.")
         overrides["passenger_load.load_frac"] = _load_frac(load)
     params = model.param_vector(overrides)
     record = out is not None or plot is not None or measured is not None
     compile_s = model.compile(record)
     if measured is not None:
         profiles = _load_logs([measured], model, params, handling, console)
+        counted = all(np.isfinite(p.channels.get("passenger_count", [np.nan])).all()
+                      for p in profiles)
+        if counted and "passenger_load.load_frac" in overrides:
+            console.print("[yellow]note:[/] the log counts the passengers on board, which the "
+                          "model uses: the passenger load set by --load or --set "
+                          "passenger_load.load_frac acts on nothing", highlight=False)
     else:
         from ebus_env.cycles import service_day
 
@@ -401,8 +422,28 @@ def calibrate(
     if fleet is not None:
         from ebus_env.study.calibration import fleet_command
 
-        _run(lambda: fleet_command(fleet, bus, columns, params, seed, population, iterations,
-                                   use_ray, address, out, _console()))
+        # what a fleet calibration does not take: refused, not ignored
+        unused = {"LOGS": logs, "--with": with_, "--without": without, "--overlay": overlay,
+                  "--fix": fix, "--range": range_, "--windowed": windowed, "--charge": charge,
+                  "--validate": validate, "--categorical-load": categorical_load,
+                  "--config": config, "--gaps": gaps != "error", "--fill": fill != "error",
+                  "--no-unit-check": no_unit_check, "--start-time": start_time,
+                  "--sparse": sparse, "--json": json_path, "--plot": plot, "--history": history}
+
+        def fleet_body():
+            given = [name for name, value in unused.items() if value]
+            if given:
+                from ebus_env.errors import ConfigError
+
+                raise ConfigError(f"--fleet calibrates each log of the folder with --bus, "
+                                  f"--columns, --params, --seed, --population and --iterations "
+                                  f"only; it does not take {', '.join(given)}. Fix: leave "
+                                  f"{'it' if len(given) == 1 else 'them'} out, or calibrate "
+                                  "the logs one by one.")
+            fleet_command(fleet, bus, columns, params, seed, population, iterations, use_ray,
+                          address, out, _console())
+
+        _run(fleet_body)
         return
 
     def body():
@@ -445,6 +486,7 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ebus_env.calibration import calibrate as run_calibration
+    from ebus_env.calibration.problem import require_soc
     from ebus_env.calibration.settings import load_calibration_config
     from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES
@@ -479,6 +521,8 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     else:
         profiles = _load_logs(logs, model, base, handling, console)
         check = _load_logs(validate or [], model, base, handling, console)
+    for profile in check:  # before the compile and the search, not after them
+        require_soc(profile, "a validation log is scored on it")
     free = _split([params]) if params else cfg.params
     for name in free or ():  # an unknown name fails here, before the compile and progress bar
         model.param_index(name)
@@ -516,8 +560,9 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     if result.interrupted:
         console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
     if out:
-        _write(out, result.write_overlay)
-        console.print(f"overlay -> {out}  (ebus simulate --bus {choice.name} --overlay {out})")
+        command = f"ebus simulate {choice.options()} --overlay {out}"
+        _write(out, lambda tmp: result.write_overlay(tmp, command))
+        console.print(f"overlay -> {out}  ({command})")
     if json_path:
         _write(json_path, lambda tmp: write_json(result.to_json(), tmp))
         console.print(f"results -> {json_path}")

@@ -223,6 +223,8 @@ def check_service(service: Service, source: str) -> None:
                 for h, n in profile.items()):
             raise ConfigError(f"{source}: service.passenger_profile must map hours of the day "
                               f"(0-24) to passengers (>= 0), got {profile!r}.")
+        for hour, count in profile.items():
+            check("log_passengers", count, f"{source}: service.passenger_profile[{hour}]")
 
 
 def _mapping(value, what: str, source: str) -> dict:

@@ -153,7 +153,8 @@ RANGES: dict[str, Range] = {r.name: r for r in (
     Range("log_altitude_m", "m", -500.0, 6000.0, "Altitude above sea level in metres (not "
           "feet: multiply by 0.3048).", given="log column `altitude_m`"),
     Range("log_passengers", "1", 0.0, 300.0, "Passengers on board, a count (a 12 m bus "
-          "carries up to about 100, an 18 m one about 160).", given="log column `passengers`"),
+          "carries up to about 100, an 18 m one about 160).", given="log column `passengers`; bus "
+          "`service.passenger_profile`"),
     Range("log_charger_kw", "kW", 0.0, 1000.0, "Rating of the charger the bus is on, in kW "
           "(not W); 0 where there is none.", given="log column `charger_kw`"),
     Range("log_solar_w_per_m2", "W/m^2", 0.0, 1500.0, "Solar irradiance; clear-sky noon "

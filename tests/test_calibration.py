@@ -9,7 +9,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+import yaml
 
 from ebus_env.calibration import CalibrationProblem, ISOPTSettings, calibrate, isopt
 from ebus_env.calibration.calibrate import evaluate_fit
@@ -256,6 +258,7 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     runner = CliRunner()
     result = runner.invoke(app, ["calibrate", str(a), "--validate", str(b), "--iterations", "10",
                                  "--params", "static_rcd.rcd_frac,cabin_hvac.setpoint_degc",
+                                 "--fix", "auxiliaries.base_power_w=4000",
                                  "--out", str(tmp_path / "cal.yaml"),
                                  "--json", str(tmp_path / "cal.json"),
                                  "--plot", str(tmp_path / "fit.png"),
@@ -270,6 +273,13 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     assert data["validation"]["nrmse"] < 0.05
     for name in ("fit.png", "fit_history.png", "fit_determinacy.png"):
         assert (tmp_path / name).stat().st_size > 5000, name
+    # the overlay holds the known value the fit held, and its header the command that
+    # simulates the calibrated bus with this very file
+    text = (tmp_path / "cal.yaml").read_text()
+    overlay = yaml.safe_load(text)
+    assert overlay["params"]["auxiliaries"]["base_power_w"] == 4000.0
+    assert set(overlay["params"]["static_rcd"]) == {"rcd_frac"}
+    assert f"ebus simulate --bus 12m --overlay {tmp_path / 'cal.yaml'}" in text.splitlines()[1]
     # the overlay is a bus overlay that simulate accepts
     sim = runner.invoke(app, ["simulate", "--cycle", "sort2", "--hours", "0.2", "--overlay",
                               str(tmp_path / "cal.yaml"), "--json", str(tmp_path / "s.json")],
@@ -282,6 +292,11 @@ def test_cli_calibrate_writes_overlay_json_and_plots(tmp_path, bus12, model):
     unknown = runner.invoke(app, ["calibrate", str(a), "--params", "static_rcd.rcd"])
     assert unknown.exit_code == 2 and "Unknown parameter 'static_rcd.rcd'" in unknown.output
     assert "iSOPT" not in unknown.output  # refused before the search starts
+    no_soc = tmp_path / "no_soc.csv"
+    pd.read_csv(b).drop(columns="soc_pct").to_csv(no_soc, index=False)
+    result = runner.invoke(app, ["calibrate", str(a), "--validate", str(no_soc)])
+    assert result.exit_code == 2 and "has no measured SoC: a validation log" in result.output
+    assert "evaluations" not in result.output  # refused before the search, not after it
 
 
 @pytest.mark.slow

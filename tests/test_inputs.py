@@ -157,6 +157,8 @@ def _bus_file(tmp_path, edit) -> Path:
     (lambda d: d["service"].update(layover_min=-6), "service.layover_min = -6"),
     (lambda d: d["service"].update(layover_every_min=0), "service.layover_every_min = 0"),
     (lambda d: d["service"].update(ambient_degc=285.0), "not kelvin"),
+    (lambda d: d["service"].update(passenger_profile={0: 40, 8: 5000}),
+     "service.passenger_profile[8] = 5000 is outside the accepted range [0, 300]"),
 ])
 def test_bus_configs_with_bad_values_name_file_and_key(tmp_path, edit, words):
     path = _bus_file(tmp_path, edit)

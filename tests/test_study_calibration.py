@@ -47,8 +47,12 @@ def test_fleet_calibration_writes_one_row_per_log(tmp_path):
     assert {"static_rcd.rcd_frac z", "outliers"} <= set(table.columns)
     written = pd.read_csv(tmp_path / "fleet.csv", keep_default_na=False)
     assert written["log"].tolist() == table["log"].tolist() and len(said) == 4
-    with pytest.raises(ConfigError, match="never overwrites an input"):
+    with pytest.raises(ConfigError, match="is an input of this command"):
         calibrate_fleet(logs, "bmw_i3", logs / "TripB02_1hz.csv", columns="bmw_i3_tum")
+    # a table among the logs would be read as a log by the next run: refused before any work
+    with pytest.raises(ConfigError, match="holds the input"):
+        calibrate_fleet(logs, "bmw_i3", logs / "table.csv", columns="bmw_i3_tum", say=said.append)
+    assert len(said) == 4 and not (logs / "table.csv").exists()
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(ConfigError, match="no logs"):

@@ -13,7 +13,7 @@ import numpy as np
 from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
 from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
-from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current
+from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current, require_soc
 from ebus_env.profile import Profile
 from ebus_env.units import shown_unit
 
@@ -90,6 +90,7 @@ class CalibrationResult:
     curves: dict = field(default_factory=dict)  # for plotting: label -> (t_h, sim, meas)
     timings: dict = field(default_factory=dict)  # search_s, polish_s, determinacy_s
     admissible: dict = field(default_factory=dict)  # name -> the effect's declared bounds
+    fixed: dict = field(default_factory=dict)  # name -> a known value held in the fit
 
     def pressing(self) -> dict[str, str]:
         """The free parameters the data press against an end of the range searched ("lower"
@@ -111,9 +112,10 @@ class CalibrationResult:
         return out
 
     def overlay(self) -> dict:
-        """A bus-config overlay with the fitted values (``ebus simulate --overlay``)."""
+        """A bus-config overlay with the fitted values and the known values held in the fit
+        (``ebus simulate --overlay``): with it, the bus is the one calibrated."""
         params: dict[str, dict[str, float]] = {}
-        for name, value in self.values.items():
+        for name, value in {**self.fixed, **self.values}.items():
             effect, param = name.split(".", 1)
             params.setdefault(effect, {})[param] = round(float(value), 6)
         note = {"method": self.method, "nrmse": round(self.fit["nrmse"], 5),
@@ -124,11 +126,14 @@ class CalibrationResult:
             note["validation_nrmse"] = round(self.validation["nrmse"], 5)
         return {"params": params, "calibration": note}
 
-    def write_overlay(self, path: str | Path) -> None:
+    def write_overlay(self, path: str | Path, command: str | None = None) -> None:
+        """Write :meth:`overlay` as YAML, headed by ``command``, the one that simulates the
+        calibrated bus (the bus, its added and removed effects, this file)."""
         import yaml
 
+        command = command or f"ebus simulate --bus <bus> --overlay {Path(path).name}"
         text = (f"# Calibrated on {self.model_name} by ebus calibrate ({self.method}). Merge with\n"
-                f"#   ebus simulate --bus <bus> --overlay {Path(path).name}\n")
+                f"#   {command}\n")
         Path(path).write_text(text + yaml.safe_dump(self.overlay(), sort_keys=False))
 
     def to_json(self) -> dict:
@@ -367,6 +372,8 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
     parameter, and the fitted model is scored on the calibration and ``validate`` profiles.
     """
     t0 = time.perf_counter()
+    for profile in validate or ():  # before the search, not after it
+        require_soc(profile, "a validation log is scored on it")
     settings = settings or ISOPTSettings()
     problem = CalibrationProblem(model, profiles, free, bounds, fixed, categorical_load, chunks,
                                  blocks=blocks, charge=charge)
@@ -457,4 +464,5 @@ def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = N
         evaluations=evaluations, simulated_steps=problem.simulated_steps,
         wall_time_s=tuning_s, interrupted=interrupted, method=method, notes=notes,
         warnings=list(problem.warnings), windows=windows, curves=curves, timings=timings,
-        admissible={p: tuple(map(float, model.param_info(p).bounds)) for p in problem.free})
+        admissible={p: tuple(map(float, model.param_info(p).bounds)) for p in problem.free},
+        fixed={p: float(v) for p, v in (fixed or {}).items() if p not in problem.free})

@@ -190,6 +190,16 @@ class _Data:
             states[:, soc_index] = self.anchors[row]
 
 
+def require_soc(profile: Profile, why: str) -> np.ndarray:
+    """The profile's measured SoC [1], or an error naming the profile and ``why`` it needs
+    one."""
+    soc = profile.measured.get("soc_frac")
+    if soc is None or not np.isfinite(soc).any():
+        raise ConfigError(f"Profile '{profile.name}' has no measured SoC: {why}. Give a log "
+                          "with a 'soc_pct' (or 'soc_frac') column.")
+    return soc
+
+
 class CalibrationProblem:
     """Free parameters, their box and the cost of candidates on measured profiles.
 
@@ -292,11 +302,7 @@ class CalibrationProblem:
     # -- data ------------------------------------------------------------------------------
     def _prepare(self, profile: Profile, initial: dict, blocks: Blocks | None, k: int,
                  charge: bool) -> _Data:
-        soc = profile.measured.get("soc_frac")
-        if soc is None or not np.isfinite(soc).any():
-            raise ConfigError(f"Profile '{profile.name}' has no measured SoC: calibration fits "
-                              "the model to it. Give a log with a 'soc_pct' (or 'soc_frac') "
-                              "column.")
+        soc = require_soc(profile, "calibration fits the model to it")
         rows = profile.sample_rows("soc_frac")
         rows = rows[np.isfinite(soc[rows])]
         anchors = {}

@@ -96,14 +96,17 @@ def calibrate_fleet(logs_dir: str | Path, bus: str, out: str | Path, *, columns:
     """Calibrate every log of ``logs_dir`` on its own and write the per-log parameter table
     to ``out`` (CSV, or Parquet by its suffix). In this process the logs run one after the
     other (each calibration already uses every core); on Ray one task per log."""
+    from ebus_env.inputs import check
+    from ebus_env.outputs import TABLE_SUFFIXES, check_folder, check_output
     from ebus_env.study.backends import map_tasks
 
-    out = Path(out)
-    if out.suffix not in (".csv", ".parquet"):
-        raise ConfigError(f"--out {out}: give a .csv or .parquet file for the parameter table.")
+    for name, value in (("population", population), ("iterations", iterations)):
+        if value is not None:
+            check(name, value, f"--{name}")
     logs = fleet_logs(logs_dir)
-    if out.resolve() in {p.resolve() for p in logs}:
-        raise ConfigError(f"--out {out} is one of the logs; an output never overwrites an input.")
+    # before any work: a table among the logs would be read as a log by the next run
+    out = check_output(Path(out), "--out", TABLE_SUFFIXES, inputs=logs)
+    check_folder(out.parent, "--out", inputs=logs)
     say(f"fleet calibration: {len(logs)} log(s) of {bus} {'on Ray' if use_ray else ''}".rstrip())
     rows = {}
 
