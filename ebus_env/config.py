@@ -101,6 +101,12 @@ class BusConfig:
             new.contributions.append(eff.name)
         return new
 
+    def effect_names(self) -> list[str]:
+        """The effects in this bus: its contributions and each slot's implementation."""
+        from ebus_env.signals import SLOTS
+
+        return list(self.contributions) + [self.slots.get(s, SLOTS[s].default) for s in SLOTS]
+
     def without_effect(self, name: str) -> BusConfig:
         """A copy without an effect (a slot implementation leaves its slot empty)."""
         new = copy.deepcopy(self)
@@ -113,8 +119,7 @@ class BusConfig:
             if new.slots.get(slot_name, slot.default) == name:
                 new.slots[slot_name] = "none"
                 return new
-        present = list(new.contributions) + [new.slots.get(s, SLOTS[s].default) for s in SLOTS]
-        raise unknown_name(f"effect in bus '{self.name}'", name, present)
+        raise unknown_name(f"effect in bus '{self.name}'", name, self.effect_names())
 
     def overlay(self, data: dict, source: str = "overlay") -> BusConfig:
         """A copy with an overlay mapping merged on top (see module docstring)."""

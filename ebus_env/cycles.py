@@ -174,10 +174,14 @@ def load_cycle(name: str) -> Cycle:
     t = np.asarray(frame["time_s"], dtype=float)
     v = np.asarray(frame["speed_kmh"], dtype=float)
     notes = ()
-    if t[0] > 0:  # ADVISOR's loaders prepend [0, v(1)] to cycles that start at t = 1 s
+    step_s = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    if 0 < t[0] <= 1.5 * step_s:  # ADVISOR's loaders prepend [0, v(1)] to cycles that start at t = 1 s
         t = np.concatenate([[0.0], t])
         v = np.concatenate([[v[0]], v])
         notes = (f"{name}: prepended t = 0 with the first speed, as ADVISOR does",)
+    elif t[0] != 0:  # a cut from a longer record: its own start is the cycle's start
+        notes = (f"{name}: time starts at {t[0]:g} s; shifted to start at 0",)
+        t = t - t[0]
     g = np.asarray(frame["grade_frac"], dtype=float) if "grade_frac" in frame.dtype.names else None
     for label, values in (("time_s", t), ("speed_kmh", v), ("grade_frac", g)):
         if values is not None and not np.all(np.isfinite(values)):

@@ -101,8 +101,9 @@ RANGES: dict[str, Range] = {r.name: r for r in (
     Range("dt_s", "s", 0.01, 1.0, "The model is built and checked at 0.1 s (10 Hz); a "
           "SORT 2 hour uses 0.4 % less energy at 1 s, and coarser steps break the speed "
           "tracking and the CC/CV taper.", warn_high=0.2, given="`--dt`; env `dt_s`"),
-    Range("steps", "1", 2.0, MAX_STEPS, "Steps of one run (duration / dt): a longer run does "
-          "not fit in memory. Fix: a shorter day or log, or a larger --dt.",
+    Range("steps", "1", 2.0, MAX_STEPS, "Steps of one run (duration / dt): a run needs two "
+          "steps at least, and a longer one does not fit in memory. Fix: a day or log of at "
+          "least two steps and at most the largest, or a larger --dt for a long one.",
           given="hours or log duration / dt"),
     Range("mean_speed_kmh", "km/h", 0.0, 100.0, "Mean speed of the scaled cycle, stops "
           "included: city buses run 10-30 km/h.", open_low=True, warn_low=5.0, warn_high=50.0,

@@ -39,6 +39,15 @@ def test_bad_cycle_file(tmp_path):
         load_cycle(str(path))
 
 
+def test_a_cycle_cut_from_a_longer_record_starts_at_its_own_start(tmp_path):
+    path = tmp_path / "cut.csv"
+    path.write_text("time_s,speed_kmh\n3600,30\n3601,30\n3602,30\n3700,30\n3710,0\n3720,0\n")
+    cycle = load_cycle(str(path))
+    assert cycle.time_s.tolist() == [0, 1, 2, 100, 110, 120]
+    assert cycle.duration_s == 120 and cycle.distance_km < 1.0  # not an hour at 30 km/h
+    assert any("time starts at 3600 s; shifted" in n for n in cycle.notes)
+
+
 def test_service_day_layovers_and_length():
     service = Service(layover_every_min=30, layover_min=5, layover_charger_kw=300)
     day = service_day("sort2", 4.0, DT, service, ambient_degc=-3.0)

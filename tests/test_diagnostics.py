@@ -755,6 +755,10 @@ def test_command_line_diagnose(tmp_path):
     bad = CliRunner().invoke(app, ["diagnose", str(hidden.OUT_DIR / "control.csv.gz"),
                                    "--add", "cabin_hvacc"])
     assert bad.exit_code == 2 and "cabin_hvac" in bad.output  # did you mean
+    present = CliRunner().invoke(app, ["diagnose", str(hidden.OUT_DIR / "control.csv.gz"),
+                                       "--add", "cabin_hvac"])
+    assert present.exit_code == 2 and "--add cabin_hvac: the bus has it already" in \
+        present.output and "--without cabin_hvac" in present.output
 
 
 @pytest.mark.slow

@@ -27,6 +27,7 @@ from ebus_env.calibration.isopt import ISOPTSettings
 from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current, paper_params
 from ebus_env.config import BusConfig, resolve_effect
 from ebus_env.effects.base import Effect
+from ebus_env.errors import ConfigError
 
 NUISANCE = {
     "vehicle_body.curb_mass_kg": (0.75, 1.25),
@@ -105,7 +106,14 @@ def check_known(bus: BusConfig, add: list[Effect], freedom: Freedom | None,
                 dt_s: float = 0.1) -> None:
     """Every known value names a parameter of ``bus`` or of an effect in ``add`` (held from
     the effect's signatures on), inside its bounds: a clear error otherwise, before any
-    calibration (:meth:`Freedom.on` leaves an added effect's values out until it is there)."""
+    calibration (:meth:`Freedom.on` leaves an added effect's values out until it is there).
+    An effect to add that the bus has already is refused: its rung would test nothing."""
+    present = set(bus.effect_names())
+    for eff in add:
+        if eff.name in present:
+            raise ConfigError(f"--add {eff.name}: the bus has it already. Fix: take it out of "
+                              f"the bus (--without {eff.name}) to see what adding it does.")
+        present.add(eff.name)
     fixed = (freedom or Freedom()).fixed
     if fixed:
         for eff in add:
