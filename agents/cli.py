@@ -64,6 +64,29 @@ def _output_folder(out: Path, option: str) -> Path:
     return out
 
 
+def _refuse_overwriting_inputs(folder: Path, option: str, names, inputs) -> None:
+    """Refuse, before the run, an output ``folder / name`` that is one of the ``inputs``
+    (paths, or None): writing it would destroy the input."""
+    from ebus_env.errors import ConfigError
+    from ebus_env.outputs import same_file
+
+    for source in inputs:
+        if source is None or not Path(source).is_file():
+            continue
+        for name in names:
+            if same_file(folder / name, Path(source)):
+                raise ConfigError(f"{option} {folder}: the command writes {name} there, which "
+                                  f"is its input {source}. Fix: give another {option}, or "
+                                  "move the input elsewhere.")
+
+
+def _env_inputs(env, overrides: dict) -> list:
+    """Files an env config reads that an output could overwrite: its YAML and a measured
+    log."""
+    return [Path(str(env)) if Path(str(env)).suffix else None,
+            overrides.get("log") if isinstance(overrides.get("log"), str | Path) else None]
+
+
 def evaluate(
     policy: Annotated[list[str], typer.Option(
         help="rule:NAME (baseline, eco_driving, eco_comfort, eco_charging, eco_all), "
@@ -80,17 +103,22 @@ def evaluate(
     """Score policies on the same held-out days: energy, grid load, comfort, delay."""
 
     def body():
+        from agents.evaluate import OUTPUTS, print_sheet
         from agents.evaluate import evaluate as run
-        from agents.evaluate import print_sheet
         from agents.ppo import load_policy
         from ebus_env.errors import ConfigError
 
         if episodes < 1:
             raise ConfigError(f"--episodes {episodes}: needs at least 1 held-out day.")
         folder = _output_folder(out, "--out")
+        overrides = _env_overrides(set_)
+        policy_files = [Path(spec.partition(":")[2]) for spec in policy
+                        if spec.startswith("ppo:") and spec != "ppo:default"]
+        _refuse_overwriting_inputs(folder, "--out", OUTPUTS,
+                                   _env_inputs(env, overrides) + policy_files)
         console = _console()
         sheet = run([load_policy(spec, threads) for spec in policy], env, episodes=episodes,
-                    **_env_overrides(set_))
+                    **overrides)
         print_sheet(sheet, console)
         for path in sheet.write(folder):
             console.print(f"[bold green]->[/] {path}")
@@ -115,19 +143,17 @@ def train(
     """Train PPO on EBus-v0's native vector env (stable-baselines3)."""
 
     def body():
-        from agents.ppo import PPOConfig, require_rl
+        from agents.ppo import OUTPUTS, PPOConfig, require_rl
         from agents.ppo import train as run
-        from ebus_env.errors import ConfigError
 
         overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed),
                                        ("time_limit_min", time_limit_min),
                                        ("torch_threads", threads)) if v is not None}
         cfg = PPOConfig.load(config, **overrides)
+        cfg.env_config()  # a bad env name or override: refused before --out is made
         folder = _output_folder(out, "--out")
-        written = {(folder / name).resolve() for name in ("config.json", "training.json")}
-        if config is not None and Path(config).resolve() in written:
-            raise ConfigError(f"--config {config}: training writes that file in --out {out}; "
-                              "copy the config elsewhere or give another --out.")
+        _refuse_overwriting_inputs(folder, "--out", OUTPUTS,
+                                   [config, *_env_inputs(cfg.env, cfg.env_overrides)])
         require_rl()
         path = run(cfg, folder, progress=False)
         done = json.loads((path / "training.json").read_text())

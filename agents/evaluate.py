@@ -44,6 +44,8 @@ METRICS = (  # key, unit, what
 )
 KEYS = [m[0] for m in METRICS]
 FEATURES = ("eco_driving", "eco_comfort", "eco_charging")
+OUTPUTS = ("scores.json", "scores_per_day.csv", "day.png")
+"""The files :meth:`ScoreSheet.write` writes into its folder."""
 
 
 @dataclass
@@ -197,18 +199,40 @@ class ScoreSheet:
                 "savings_vs_baseline": self.savings(), "versus_best_rule": versus}
 
     def write(self, out_dir: Path) -> list[Path]:
-        """``scores.json``, ``scores_per_day.csv`` and ``day.png`` into ``out_dir``."""
+        """``scores.json``, ``scores_per_day.csv`` and ``day.png`` into ``out_dir``, each
+        through a temporary file renamed over its target. A number that is not finite (the
+        CI of one day, the load factor of a day without grid energy) is ``null`` in the JSON
+        (strict JSON has no NaN) and an empty cell in the CSV."""
         import pandas as pd
+
+        from ebus_env.outputs import atomic, write_text
 
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
-        written = [out_dir / "scores.json", out_dir / "scores_per_day.csv", out_dir / "day.png"]
-        written[0].write_text(json.dumps(self.to_dict(), indent=2))
-        frames = [pd.DataFrame(p.days, columns=KEYS).assign(policy=p.name, seed=self.seeds)
-                  for p in self.policies]
-        pd.concat(frames).to_csv(written[1], index=False)
-        plot_days(self, written[2])
+        written = [out_dir / name for name in OUTPUTS]
+        write_text(written[0], json.dumps(finite_or_null(self.to_dict()), indent=2,
+                                          allow_nan=False))
+        frames = [pd.DataFrame(np.where(np.isfinite(p.days), p.days, np.nan), columns=KEYS)
+                  .assign(policy=p.name, seed=self.seeds) for p in self.policies]
+        with atomic(written[1]) as tmp:
+            pd.concat(frames).to_csv(tmp, index=False, na_rep="")
+        with atomic(written[2]) as tmp:
+            plot_days(self, tmp)
         return written
+
+
+def finite_or_null(value):
+    """``value`` (nested dicts, lists, tuples of numbers) with every number that is not
+    finite (NaN, +-inf) as None, and numpy scalars as Python ones: JSON without NaN."""
+    if isinstance(value, dict):
+        return {k: finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 def print_sheet(sheet: ScoreSheet, console) -> None:

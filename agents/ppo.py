@@ -12,8 +12,11 @@ seeded ``seed + i``; the evaluator's held-out days use seeds from 10,000.
 from __future__ import annotations
 
 import json
+import math
+import numbers
 import time
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -25,6 +28,20 @@ from ebus_env.errors import ConfigError
 
 DEFAULT_AGENT = paths.trained("ppo_sort2_day")
 """The shipped agent (``ppo:default``): PPO trained on ``sort2_day`` (see its README)."""
+OUTPUTS = ("config.json", "training.json", "model.zip", "vecnormalize.pkl", "progress.csv")
+"""The files :func:`train` writes into its folder (besides ``checkpoints/``)."""
+
+
+SEED_MAX = 2**32 - 1  # numpy's legacy seeding, which stable-baselines3 uses, takes no more
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    return (isinstance(value, numbers.Real) and not isinstance(value, bool)
+            and math.isfinite(value))
 
 
 @dataclass(frozen=True)
@@ -49,25 +66,94 @@ class PPOConfig:
     torch_threads: int = 1  # a small MLP on a shared CPU: more threads mostly wait on each other
 
     def __post_init__(self):
+        """Every field's type and range, and what stable-baselines3's PPO requires of the
+        rollout and its mini-batches: a clear :class:`ConfigError` before any work."""
+        def fail(name: str, needs: str):
+            raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs {needs}.")
+
+        def put(name: str, value):
+            object.__setattr__(self, name, value)
+
+        if isinstance(self.env, Path):
+            put("env", str(self.env))
+        if not isinstance(self.env, str) or not self.env.strip():
+            fail("env", "an env config: a name in configs/env (sort2_day) or a YAML path")
+        if not isinstance(self.env_overrides, Mapping) \
+                or not all(isinstance(k, str) for k in self.env_overrides):
+            fail("env_overrides", "a mapping of env config keys to values, e.g. "
+                 "{service_h: 3.0}")
+        put("env_overrides", dict(self.env_overrides))
         for name in ("num_envs", "total_steps", "n_steps", "batch_size", "n_epochs",
                      "checkpoint_every", "torch_threads"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs a whole "
-                                  "number >= 1.")
-        for name in ("learning_rate", "gamma", "gae_lambda"):
-            if not 0.0 < getattr(self, name) <= 1.0:
-                raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs a value "
-                                  "in (0, 1].")
-        if self.time_limit_min is not None and not self.time_limit_min > 0:
-            raise ConfigError(f"PPO config time_limit_min={self.time_limit_min!r}: needs "
-                              "minutes > 0, or leave it out for no limit.")
+            if not _is_int(getattr(self, name)) or getattr(self, name) < 1:
+                fail(name, "a whole number >= 1")
+            put(name, int(getattr(self, name)))
+        if not _is_int(self.seed) or not 0 <= self.seed <= SEED_MAX:
+            fail("seed", f"a whole number from 0 to {SEED_MAX}")
+        put("seed", int(self.seed))
+        for name, low_open, low in (("learning_rate", True, 0.0), ("gamma", True, 0.0),
+                                    ("gae_lambda", False, 0.0)):
+            value = getattr(self, name)
+            if not _is_real(value) or not (low < value if low_open else low <= value) \
+                    or value > 1.0:
+                fail(name, f"a number in {'(' if low_open else '['}{low:g}, 1]")
+            put(name, float(value))
+        if not _is_real(self.ent_coef) or self.ent_coef < 0:
+            fail("ent_coef", "a number >= 0 (0: no entropy bonus)")
+        put("ent_coef", float(self.ent_coef))
+        if not _is_real(self.log_std_init):
+            fail("log_std_init", "a finite number (the log of the initial action noise std, "
+                 "e.g. -1.0)")
+        put("log_std_init", float(self.log_std_init))
+        if not isinstance(self.net_arch, (list, tuple)) \
+                or not all(_is_int(n) and n >= 1 for n in self.net_arch):
+            fail("net_arch", "a list of layer widths, whole numbers >= 1, e.g. [64, 64]")
+        put("net_arch", tuple(int(n) for n in self.net_arch))
+        if not isinstance(self.normalize, bool):
+            fail("normalize", "true or false")
+        if self.time_limit_min is not None:
+            if not _is_real(self.time_limit_min) or not self.time_limit_min > 0:
+                fail("time_limit_min", "minutes > 0, or leave it out for no limit")
+            put("time_limit_min", float(self.time_limit_min))
+        # stable-baselines3 normalizes the advantages over each mini-batch (not over one sample)
+        if self.batch_size < 2:
+            fail("batch_size", "at least 2 (stable-baselines3 normalizes the advantages over "
+                 "each mini-batch)")
+        if self.batch_size > self.rollout:
+            raise ConfigError(
+                f"PPO config batch_size={self.batch_size} is larger than one rollout, num_envs "
+                f"x n_steps = {self.num_envs} x {self.n_steps} = {self.rollout}. Fix: lower "
+                f"batch_size to at most {self.rollout}, or raise n_steps or num_envs.")
+
+    @property
+    def rollout(self) -> int:
+        """Env steps per update: ``num_envs x n_steps``."""
+        return self.num_envs * self.n_steps
+
+    @property
+    def planned_steps(self) -> int:
+        """The steps training takes without a time limit: ``total_steps`` rounded up to whole
+        rollouts (stable-baselines3 collects whole rollouts)."""
+        return -(-self.total_steps // self.rollout) * self.rollout
+
+    def rounding_note(self) -> str | None:
+        """A line saying that ``total_steps`` rounds up to whole rollouts, or None."""
+        if self.planned_steps == self.total_steps:
+            return None
+        return (f"{self.total_steps} steps round up to {self.planned_steps}: whole rollouts of "
+                f"num_envs x n_steps = {self.num_envs} x {self.n_steps} = {self.rollout} steps.")
+
+    def env_config(self):
+        """The env config this trains on (``env`` with ``env_overrides``): a clear error when
+        either is wrong."""
+        from ebus_env.envs.spec import EnvConfig
+
+        return EnvConfig.load(self.env, **self.env_overrides)
 
     @classmethod
     def load(cls, source: str | Path | None = "ppo", **overrides) -> PPOConfig:
         """From a name in ``configs/agents`` or a YAML path, with overrides."""
-        data = config_keys(cls, source or "ppo", overrides, "PPO", paths.configs("agents"))
-        data["net_arch"] = tuple(data.get("net_arch", cls.net_arch))
-        return cls(**data)
+        return cls(**config_keys(cls, source or "ppo", overrides, "PPO", paths.configs("agents")))
 
 
 def _venv(cfg: PPOConfig, num_envs: int):
@@ -106,54 +192,124 @@ def _time_limit(minutes: float, clock: Callable[[], float]):
     return TimeLimit()
 
 
+def _save_agent(model, norm, model_path: Path, norm_path: Path) -> None:
+    """``model`` (and the VecNormalize ``norm``, unless None) each through a temporary file
+    renamed over its target: a crash leaves the previous file whole. The temporary path keeps
+    the suffix, so stable-baselines3 does not append ``.zip``."""
+    from ebus_env.outputs import atomic
+
+    with atomic(model_path) as tmp:
+        model.save(tmp)
+    if norm is not None:
+        with atomic(norm_path) as tmp:
+            norm.save(str(tmp))
+
+
+def _checkpoints(every: int, folder: Path, normalize: bool):
+    """stable-baselines3's CheckpointCallback (same names: ``ppo_<steps>_steps.zip``,
+    ``ppo_vecnormalize_<steps>_steps.pkl``), each file written through a temporary file."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    class AtomicCheckpoints(CheckpointCallback):
+        def _on_step(self) -> bool:
+            if self.n_calls % self.save_freq == 0:
+                norm = self.model.get_vec_normalize_env() if self.save_vecnormalize else None
+                _save_agent(self.model, norm, Path(self._checkpoint_path(extension="zip")),
+                            Path(self._checkpoint_path("vecnormalize_", extension="pkl")))
+            return True
+
+    return AtomicCheckpoints(every, str(folder), name_prefix="ppo", save_vecnormalize=normalize)
+
+
+def build(cfg: PPOConfig):
+    """The untrained PPO model of ``cfg`` on its seeded vector env (VecNormalize around it when
+    ``cfg.normalize``); ``model.get_env()`` is that env, to close."""
+    require_rl()
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from ebus_env.errors import InputWarning
+
+    if cfg.rollout % cfg.batch_size:  # said in one line, not in stable-baselines3's three
+        warnings.warn(InputWarning(
+            f"PPO config batch_size={cfg.batch_size} does not divide a rollout of num_envs x "
+            f"n_steps = {cfg.rollout} steps: each epoch ends with a mini-batch of "
+            f"{cfg.rollout % cfg.batch_size}. Fix: a batch_size that divides {cfg.rollout}.",
+            ("ppo batch", cfg.batch_size, cfg.rollout)), stacklevel=2)
+    venv = _venv(cfg, cfg.num_envs)
+    try:
+        venv.seed(cfg.seed)
+        if cfg.normalize:
+            venv = VecNormalize(venv, gamma=cfg.gamma)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "You have specified a mini-batch size",
+                                    UserWarning)
+            return PPO("MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+                       n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate,
+                       gamma=cfg.gamma, gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef,
+                       seed=cfg.seed, policy_kwargs={"net_arch": list(cfg.net_arch),
+                                                     "log_std_init": cfg.log_std_init},
+                       device="cpu", verbose=0)
+    except BaseException:
+        venv.close()
+        raise
+
+
 def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
           clock: Callable[[], float] = time.perf_counter) -> Path:
     """Train PPO as configured; returns ``out_dir`` holding the agent and ``training.json``
-    (steps done, wall time, whether the time limit ended it, machine).
+    (steps asked and done, wall time, whether the time limit ended it, machine).
 
+    The env and the model are built before ``out_dir`` is made: a config that fails there
+    leaves nothing behind. ``total_steps`` rounds up to whole rollouts (``num_envs x
+    n_steps``), said by an :class:`~ebus_env.errors.InputWarning`. Every file is written
+    through a temporary file and renamed, but for the curve (``progress.csv``, TensorBoard
+    logs), which grows as it trains.
     ``clock`` [s] measures the time limit and the wall time (tests pass a counter); torch runs
     on ``cfg.torch_threads`` threads (set for the whole process)."""
     import importlib.util
     import os
     import platform
 
-    torch, _ = require_rl()
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import CheckpointCallback
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import VecNormalize
+    from ebus_env.errors import InputWarning
+    from ebus_env.outputs import write_text
 
-    torch.set_num_threads(cfg.torch_threads)
+    torch, _ = require_rl()
+    from stable_baselines3.common.logger import configure
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
-    venv = _venv(cfg, cfg.num_envs)
-    venv.seed(cfg.seed)
-    if cfg.normalize:
-        venv = VecNormalize(venv, gamma=cfg.gamma)
-    model = PPO("MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
-                n_epochs=cfg.n_epochs, learning_rate=cfg.learning_rate, gamma=cfg.gamma,
-                gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef, seed=cfg.seed,
-                policy_kwargs={"net_arch": list(cfg.net_arch), "log_std_init": cfg.log_std_init},
-                device="cpu", verbose=0)
-    # Our own logger: the curve lands next to the agent, and stable-baselines3 does not leave
-    # an empty SB3-<time> folder in the system's temp directory on every run.
-    formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
-    model.set_logger(configure(str(out), formats))
-    callbacks = [CheckpointCallback(max(cfg.checkpoint_every // cfg.num_envs, 1),
-                                    str(out / "checkpoints"), name_prefix="ppo",
-                                    save_vecnormalize=cfg.normalize)]
-    limit = _time_limit(cfg.time_limit_min, clock) if cfg.time_limit_min else None
-    t0 = clock()
-    model.learn(cfg.total_steps, callback=callbacks + ([limit] if limit else []),
-                progress_bar=progress)
-    wall_s = clock() - t0
-    model.save(out / "model.zip")
-    if cfg.normalize:
-        venv.save(str(out / "vecnormalize.pkl"))
-    venv.close()
-    (out / "training.json").write_text(json.dumps({
-        "steps": int(model.num_timesteps), "wall_s": round(wall_s, 1),
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"PPO output {out} is a file. Fix: give a folder (new or existing).")
+    cfg.env_config()  # a bad env name or override: an error before anything is built
+    note = cfg.rounding_note()
+    if note:
+        warnings.warn(InputWarning(note, ("ppo rollout", cfg.total_steps, cfg.rollout)),
+                      stacklevel=2)
+    torch.set_num_threads(cfg.torch_threads)
+    model = build(cfg)
+    venv = model.get_env()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_text(out / "config.json", json.dumps(asdict(cfg), indent=2))
+        # Our own logger: the curve lands next to the agent, and stable-baselines3 does not
+        # leave an empty SB3-<time> folder in the system's temp directory on every run.
+        formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
+        model.set_logger(configure(str(out), formats))
+        callbacks = [_checkpoints(max(cfg.checkpoint_every // cfg.num_envs, 1),
+                                  out / "checkpoints", cfg.normalize)]
+        limit = _time_limit(cfg.time_limit_min, clock) if cfg.time_limit_min else None
+        t0 = clock()
+        model.learn(cfg.total_steps, callback=callbacks + ([limit] if limit else []),
+                    progress_bar=progress)
+        wall_s = clock() - t0
+        model.logger.close()
+        _save_agent(model, model.get_vec_normalize_env(), out / "model.zip",
+                    out / "vecnormalize.pkl")
+    finally:
+        venv.close()
+    write_text(out / "training.json", json.dumps({
+        "steps": int(model.num_timesteps), "steps_asked": cfg.total_steps,
+        "rollout": cfg.rollout, "wall_s": round(wall_s, 1),
         "steps_per_s": round(model.num_timesteps / max(wall_s, 1e-9)),
         "stopped_by_time_limit": bool(limit and limit.reached),
         "torch_threads": cfg.torch_threads, "cpus": os.cpu_count(),
