@@ -125,8 +125,6 @@ def _overrides(items: list[str] | None) -> dict[str, float]:
 def _load_logs(paths, model, params, handling: LogHandling, console, notes=None):
     """Profiles of measured logs, with the loader's report printed (and its changes appended
     to ``notes``)."""
-    from rich.markup import escape
-
     from ebus_env.io.measured import load_log
 
     vmax = params[model.param_index("vehicle_body.max_speed_kmh")] \
@@ -140,14 +138,20 @@ def _load_logs(paths, model, params, handling: LogHandling, console, notes=None)
         profiles += log.profiles
         if notes is not None:
             notes += log.report.changes
-        for line in log.report.changes:
-            console.print(f"[dim]loader ({Path(path).name}):[/] {escape(line)}", highlight=False,
-                          soft_wrap=True)
-        for line in log.report.warnings + log.report.ignored:
-            console.print(f"[yellow]loader ({Path(path).name}):[/] {escape(line)}",
-                          highlight=False,
-                          soft_wrap=True)
+        _print_report(log.report, path, "loader", console)
     return profiles
+
+
+def _print_report(report, path, who: str, console) -> None:
+    """A loader's report: its changes (dim), then its warnings and ignored columns."""
+    from rich.markup import escape
+
+    for line in report.changes:
+        console.print(f"[dim]{who} ({Path(path).name}):[/] {escape(line)}", highlight=False,
+                      soft_wrap=True)
+    for line in report.warnings + report.ignored:
+        console.print(f"[yellow]{who} ({Path(path).name}):[/] {escape(line)}", highlight=False,
+                      soft_wrap=True)
 
 
 def _inputs(*groups, effects=()) -> list[Path]:
@@ -514,8 +518,7 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
                                   max_speed_kmh=vmax, start_h=handling.start_h)
                   for p in [*logs, *(validate or [])]]
         for path, log in zip([*logs, *(validate or [])], loaded, strict=True):
-            for line in log.report.changes:
-                console.print(f"[dim]sparse ({Path(path).name}):[/] {line}", highlight=False)
+            _print_report(log.report, path, "sparse", console)
         profiles = [log.profile for log in loaded[:len(logs)]]
         check = [log.profile for log in loaded[len(logs):]]
     else:

@@ -39,6 +39,9 @@ class Profile:
     samples
         For a measured signal, the rows where the log really has a sample (a 1 Hz log on a
         0.1 s grid: every 10th row; a 5-minute log: every 3000th). Fits compare only there.
+    start_s
+        The log's own time at the first row, from the log's first row [s]: a segment of a log
+        split at its gaps starts where it does in the log.
     notes
         Every change made to the data, in words.
     """
@@ -50,6 +53,7 @@ class Profile:
     measured: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     samples: dict[str, np.ndarray] = field(default_factory=dict)
+    start_s: float = 0.0
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
@@ -131,13 +135,14 @@ class Profile:
         for name, value in channels.items():
             new[name] = np.broadcast_to(np.asarray(value, dtype=float), (self.n_steps,)).copy()
         return Profile(new, self.dt_s, self.name, self.start_time_h, dict(self.measured),
-                       list(self.notes), dict(self.samples))
+                       list(self.notes), dict(self.samples), self.start_s)
 
     def without_measured(self, *names: str) -> Profile:
         """A copy without the measured signals ``names`` (the model's inputs unchanged)."""
         return Profile(dict(self.channels), self.dt_s, self.name, self.start_time_h,
                        {k: v for k, v in self.measured.items() if k not in names},
-                       list(self.notes), {k: v for k, v in self.samples.items() if k not in names})
+                       list(self.notes), {k: v for k, v in self.samples.items() if k not in names},
+                       self.start_s)
 
     def slice(self, start: int, stop: int) -> Profile:
         """Rows ``start:stop`` as a profile of their own."""
@@ -146,4 +151,4 @@ class Profile:
         return Profile({k: v[start:stop] for k, v in self.channels.items()}, self.dt_s,
                        self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
                        {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
-                       samples)
+                       samples, self.start_s + start * self.dt_s)

@@ -25,16 +25,15 @@ class Run:
         return name if len(self.results) == 1 else f"{name} ({len(self.results)} segments)"
 
     def trace_frame(self):
-        """Traces of all segments, one after the other, with a ``segment`` column."""
+        """Traces of all segments, one after the other, with a ``segment`` column; ``time_s``
+        is the log's own time (a gap between segments stays a gap)."""
         import pandas as pd
 
         frames = []
-        offset = 0.0
         for i, result in enumerate(self.results):
             frame = result.trace_frame()
-            frame["time_s"] += offset
+            frame["time_s"] += result.profile.start_s
             frame.insert(1, "segment", i)
-            offset += result.profile.duration_s
             frames.append(frame)
         return pd.concat(frames, ignore_index=True)
 

@@ -74,6 +74,11 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     assert code == 2 and "Duplicated times" in out and "row 1" in out
     code, out = invoke("simulate", "--set", "aero_drag.drag_coef=9")
     assert code == 2 and "outside its bounds" in out
+    code, out = invoke("simulate", "--set", "aero_drag.drag_coef=0.6", "--set",
+                       "aero_drag.drag_coef=0.7")
+    assert code == 2 and "--set aero_drag.drag_coef is given twice (0.6 and 0.7)" in out
+    code, out = invoke("simulate", "--load", "full", "--set", "passenger_load.load_frac=0")
+    assert code == 2 and "--load and --set passenger_load.load_frac both" in out
     # a known value out of range is the user's value, not the bus config's
     log = ROOT / "data/measured/hidden/control.csv.gz"
     code, out = invoke("diagnose", log, "--set", "rint_battery.cell_capacity_ah=-5")
@@ -81,6 +86,41 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     code, out = invoke("diagnose", log, "--set", "rint_battery.capacity_ah=90")
     assert code == 2 and "Did you mean 'rint_battery.cell_capacity_ah'" in out, out
     assert "listed by `ebus effects --bus NAME`" in out  # 65 names, too many to list
+
+
+def test_a_fleet_calibration_refuses_the_options_it_does_not_take(tmp_path):
+    code, out = invoke("calibrate", "--fleet", ROOT / "data/measured/bmw_i3_tum", "--bus",
+                       "bmw_i3", "--without", "cabin_hvac", "--json", tmp_path / "x.json",
+                       "--out", tmp_path / "t.csv")
+    assert code == 2 and "it does not take --without, --json. Fix: leave them out" in out
+    assert not (tmp_path / "t.csv").exists() and "fleet calibration:" not in out
+
+
+def test_the_documented_paths_into_shipped_folders_work_from_any_folder(tmp_path, monkeypatch):
+    """After a wheel install there is no configs/ or data/ in the working folder: the paths
+    the documentation gives name the shipped files."""
+    monkeypatch.chdir(tmp_path)
+    code, out = invoke("simulate", "--bus", "configs/bus/12m.yaml", "--measured",
+                       "data/measured/hidden/control.csv.gz", "--json", "s.json")
+    assert code == 0, out
+    assert json.loads((tmp_path / "s.json").read_text())["distance_km"] > 10
+    code, out = invoke("simulate", "--bus", "configs/bus/13m.yaml")
+    assert code == 2 and "configs/bus/13m.yaml does not exist" in out
+
+
+def test_a_log_split_at_its_gap_keeps_its_own_times_in_the_trace(tmp_path):
+    t = np.delete(np.arange(1200.0), np.arange(500, 800))  # 300 s without rows
+    frame = pd.DataFrame({"time_s": t, "speed_kmh": 20.0 + 10.0 * np.sin(t / 60.0),
+                          "soc_pct": 90.0 - t / 600.0})
+    frame.to_csv(tmp_path / "gap.csv", index=False)
+    code, out = invoke("simulate", "--measured", tmp_path / "gap.csv", "--gaps", "split",
+                       "--out", tmp_path / "trace.csv")
+    assert code == 0, out
+    trace = pd.read_csv(tmp_path / "trace.csv")
+    second = trace[trace["segment"] == 1]
+    assert trace.loc[trace["segment"] == 0, "time_s"].max() < 500.0
+    assert second["time_s"].iloc[0] == pytest.approx(800.0)  # where it starts in the log
+    assert second["time_s"].iloc[-1] == pytest.approx(1199.0, abs=0.11)
 
 
 def test_unit_check_names_its_switch_and_the_switch_turns_it_off(tmp_path):
@@ -116,6 +156,15 @@ def test_load_categories(tmp_path):
     assert figures["full"] > figures["driver"]
     code, out = invoke("simulate", "--load", "heavy")
     assert code == 2 and "driver, half, full" in out
+    # a log that counts its passengers sets the load: --load acts on nothing, and says so
+    frame = pd.DataFrame({"time_s": np.arange(600.0), "speed_kmh": 20.0, "passengers": 30})
+    frame.to_csv(tmp_path / "counted.csv", index=False)
+    for load in ("driver", "full"):
+        code, out = invoke("simulate", "--measured", tmp_path / "counted.csv", "--load", load,
+                           "--json", tmp_path / f"counted_{load}.json")
+        assert code == 0 and "the log counts the passengers on board" in out, out
+    assert json.loads((tmp_path / "counted_driver.json").read_text())["kwh_per_km"] == \
+        json.loads((tmp_path / "counted_full.json").read_text())["kwh_per_km"]
 
 
 def test_diagnose_holds_what_the_user_knows_and_frees_what_their_config_frees(tmp_path):

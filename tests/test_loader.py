@@ -309,3 +309,207 @@ def test_twizy_trip_with_preset_and_the_twizys_energy_per_km():
     km = run.trace("distance_m")[-1] / 1e3
     used_wh = (run.trace("soc_frac")[0] - run.trace("soc_frac")[-1]) * 108 * 15 * 3.75
     assert 40.0 < used_wh / km < 120.0, used_wh / km
+
+
+# -- gaps='hold' changes only the gaps --------------------------------------------------------
+def _same_profiles(one, other):
+    assert len(one.profiles) == len(other.profiles)
+    for p, q in zip(one.profiles, other.profiles, strict=True):
+        assert p.channels.keys() == q.channels.keys() and p.measured.keys() == q.measured.keys()
+        for key in p.channels:
+            np.testing.assert_array_equal(p.channels[key], q.channels[key])
+        for key in p.measured:
+            np.testing.assert_array_equal(p.measured[key], q.measured[key])
+        assert p.notes == q.notes
+
+
+def test_a_log_without_gaps_is_the_same_whatever_the_gap_policy(tmp_path):
+    """Holding only bridges gaps: a log without one (the BMW trip of the audit, where 'hold'
+    once held every channel between 1 Hz samples and added 0.44 kWh) is unchanged."""
+    frame = good_frame().assign(ambient_degc=lambda f: 5.0 + 0.01 * f.time_s)
+    for path, columns in ((write(tmp_path, frame), None),
+                          (ROOT / "data/measured/bmw_i3_tum/TripB16_1hz.csv", "bmw_i3_tum")):
+        reference = load_log(path, DT, columns=columns)
+        assert any("linear interpolation" in c for c in reference.report.changes)
+        for policy in ("split", "hold", "interpolate"):
+            _same_profiles(reference, load_log(path, DT, columns=columns, gaps=policy))
+    speed = load_log(write(tmp_path, frame), DT, gaps="hold").profile.channels["speed_ref_mps"]
+    samples = frame.speed_kmh.to_numpy() / 3.6
+    assert speed[15] == pytest.approx(0.5 * (samples[1] + samples[2]))  # 1.5 s: not held
+    assert speed[15] > samples[1] + 0.1
+
+
+def test_hold_holds_inside_the_gap_and_interpolates_elsewhere(tmp_path):
+    frame = good_frame().assign(ambient_degc=lambda f: 5.0 + 0.01 * f.time_s)
+    frame.loc[300:, "time_s"] += 120.0  # samples 299 s and 420 s with nothing between
+    path = write(tmp_path, frame)
+    held = load_log(path, DT, gaps="hold").profile
+    linear = load_log(path, DT, gaps="interpolate").profile
+    t = np.arange(held.n_steps) * DT
+    inside = (t > 299.0 + 1e-6) & (t < 420.0 - 1e-6)
+    assert inside.sum() == 1209
+    assert np.all(held.channels["ambient_degc"][inside] == pytest.approx(5.0 + 0.01 * 299))
+    assert np.all(held.channels["speed_ref_mps"][inside]
+                  == pytest.approx(frame.speed_kmh[299] / 3.6))
+    for key in ("ambient_degc", "speed_ref_mps"):
+        np.testing.assert_array_equal(held.channels[key][~inside], linear.channels[key][~inside])
+    ambient = linear.channels["ambient_degc"]  # interpolated across the gap: 7.99 -> 8.0
+    assert ambient[inside][0] == pytest.approx(7.99 + 0.01 * 0.1 / 121, rel=1e-9)
+    assert ambient[inside][0] > held.channels["ambient_degc"][inside][0]
+
+
+def test_split_segments_each_get_their_grade_from_altitude(tmp_path):
+    """The second segment's grade is computed from its own altitude samples (it once
+    failed with 'fp and xp are not of the same length')."""
+    t = np.arange(600.0)
+    t[300:] += 120.0
+    frame = pd.DataFrame({"time_s": t, "speed_kmh": 36.0, "soc_pct": 90.0,
+                          "altitude_m": 100.0 + 0.2 * t})  # 10 m/s, 2 m up per 100 m: 2 %
+    log = load_log(write(tmp_path, frame), DT, gaps="split")
+    assert [p.n_steps for p in log.profiles] == [2991, 2991]
+    for p in log.profiles:
+        assert np.median(p.channels["grade_frac"]) == pytest.approx(0.02, rel=0.02)
+
+
+# -- one column per quantity ------------------------------------------------------------------
+def test_time_s_and_timestamp_that_agree_give_the_clock_of_the_timestamps(tmp_path):
+    frame = good_frame()
+    frame["timestamp"] = pd.Timestamp("2026-03-02 06:00") + pd.to_timedelta(frame.time_s, "s")
+    log = load_log(write(tmp_path, frame), DT)
+    assert log.profile.start_time_h == pytest.approx(6.0)  # not 00:00
+    assert log.profile.duration_s == pytest.approx(599.1)  # 0-599 s, one step each
+    changes = " ".join(log.report.changes)
+    assert "'time_s' and 'timestamp' agree" in changes and "first row at 06:00:00" in changes
+    assert "no clock time" not in changes
+    frame["timestamp"] = pd.Timestamp("2026-03-02 06:00") + pd.to_timedelta(
+        frame.time_s + (frame.time_s > 100) * 5.0, "s")  # 5 s apart from row 101 on
+    with pytest.raises(LogError, match=r"'time_s' and 'timestamp' disagree at 499 rows \(row 101:"
+                                       r" 101 s and 106 s.*rows 101-599.*keep one of them"):
+        load_log(write(tmp_path, frame), DT)
+    with pytest.raises(LogError, match="The log has date-times .*06:00:00.*--start-time"):
+        load_log(write(tmp_path, frame.assign(timestamp=frame.timestamp.iloc[0]
+                                              + pd.to_timedelta(frame.time_s, "s"))), DT,
+                 start_h=7.0)
+
+
+@pytest.mark.parametrize(("first", "second", "factor"), [
+    ("soc_pct", "soc_frac", 100.0), ("speed_kmh", "speed_mps", 3.6),
+    ("grade_pct", "grade_frac", 100.0),
+])
+def test_two_columns_of_one_quantity_are_used_only_when_they_agree(tmp_path, first, second,
+                                                                   factor):
+    frame = good_frame().assign(grade_pct=np.linspace(-2.0, 3.0, 600), soc_pct=lambda f:
+                                90.0 - 0.002 * f.time_s)
+    truth = frame[first].to_numpy()
+    frame[first] = np.round(truth, 1)
+    frame[second] = np.round(truth / factor, 5)  # finer than the first's 0.1 steps
+    log = load_log(write(tmp_path, frame), DT)
+    assert f"'{first}' and '{second}' agree within their rounding: '{second}' used, " \
+           f"'{first}' not" in log.report.changes
+    alone = load_log(write(tmp_path, frame.drop(columns=first)), DT)
+    for got, want in [(log.profile.channels, alone.profile.channels),
+                      (log.profile.measured, alone.profile.measured)]:
+        assert got.keys() == want.keys()
+        for key in got:
+            np.testing.assert_array_equal(got[key], want[key])
+    frame.loc[200:209, second] += 2.0 / factor  # 2 units apart: not rounding
+    with pytest.raises(LogError, match=rf"'{first}' and '{second}' both give .* disagree at 10 "
+                                       rf"rows \(row 200: {first} .*rows 200-209.*keep one"):
+        load_log(write(tmp_path, frame), DT)
+
+
+def test_grade_is_used_over_altitude_with_a_note(tmp_path):
+    frame = good_frame().assign(grade_pct=2.5, altitude_m=lambda f: 300.0 + 0.1 * f.time_s)
+    log = load_log(write(tmp_path, frame), DT)
+    assert np.all(log.profile.channels["grade_frac"] == pytest.approx(0.025))
+    assert log.profile.measured["altitude_m"][-1] == pytest.approx(359.9)
+    assert any("grade from 'grade_pct', not from 'altitude_m'" in c for c in log.report.changes)
+
+
+# -- date-times -------------------------------------------------------------------------------
+def test_a_daylight_saving_switch_is_no_jump_back(tmp_path):
+    path = tmp_path / "dst.csv"
+    path.write_text("timestamp,speed_kmh,soc_pct\n2026-10-25T02:59:58+02:00,10,90\n"
+                    "2026-10-25T02:59:59+02:00,10,90\n2026-10-25T02:00:00+01:00,10,90\n"
+                    "2026-10-25T02:00:01+01:00,10,90\n")
+    log = load_log(path, DT)
+    assert log.profile.duration_s == pytest.approx(3.1)  # 1 s steps in UTC, one step each
+    assert log.profile.start_time_h == pytest.approx(2 + 59 / 60 + 58 / 3600)  # local clock
+    assert any("UTC offset changes within the log (+02:00 to +01:00 at row 2)" in c
+               for c in log.report.changes)
+    path.write_text(path.read_text().replace("02:00:01+01:00", "02:00:01"))
+    with pytest.raises(LogError, match="a UTC offset and some not.*row 3"):
+        load_log(path, DT)
+
+
+def test_day_first_dates_and_date_times_in_time_s_name_their_cause(tmp_path):
+    stamps = ["04/05/2026 23:59:58", "04/05/2026 23:59:59", "05/05/2026 00:00:00",
+              "05/05/2026 00:00:01"]
+    frame = pd.DataFrame({"timestamp": stamps, "speed_kmh": 10.0, "soc_pct": 90.0})
+    with pytest.raises(LogError, match=r"jump by 29\.0 days from '04/05/2026 23:59:59' to "
+                                       r"'05/05/2026 00:00:00': are the dates day-first.*row 2"
+                                       r".*ISO 8601"):
+        load_log(write(tmp_path, frame), DT)
+    frame["timestamp"] = [s.replace("04/05", "12/05").replace("05/05", "13/05") for s in stamps]
+    with pytest.raises(LogError, match=r"cannot be read.*rows 2-3.*day- or month-first"):
+        load_log(write(tmp_path, frame), DT)
+    frame = frame.rename(columns={"timestamp": "time_s"}).assign(
+        time_s=["2026-05-04T23:59:58", "2026-05-04T23:59:59", "2026-05-05T00:00:00",
+                "2026-05-05T00:00:01"])
+    with pytest.raises(LogError, match="'time_s' holds date-times .*rename the column "
+                                       "'timestamp'"):
+        load_log(write(tmp_path, frame), DT)
+
+
+# -- unreadable files -------------------------------------------------------------------------
+@pytest.mark.parametrize("damage", ["truncated", "not gzip", "bad checksum"])
+def test_a_damaged_gzip_log_is_named_as_such(tmp_path, damage):
+    data = (ROOT / "data/measured/hidden/control.csv.gz").read_bytes()
+    damaged = {"truncated": data[:20000], "not gzip": b"time_s,speed_kmh\n0,1\n1,2\n",
+               "bad checksum": data[:-8] + bytes(4) + data[-4:]}[damage]
+    path = tmp_path / "log.csv.gz"
+    path.write_bytes(damaged)
+    with pytest.raises(LogError, match=r"truncated or not a valid gzip file .*log\.csv\.gz"):
+        load_log(path, DT)
+
+
+# -- sparse logs: the dense loader's checks ----------------------------------------------------
+def sparse_frame():
+    t = np.arange(0, 3600 * 3, 300.0)
+    return pd.DataFrame({"time_s": t, "distance_km": 0.004 * t, "soc_pct": 90 - t / 1000,
+                         "charging": 0, "ambient_degc": 5.0})
+
+
+@pytest.mark.parametrize(("edit", "words"), [
+    (lambda f: f.assign(ambient_degc=f.ambient_degc.where(f.index != 3)),
+     r"Missing values \(.*column 'ambient_degc', row 3\)"),
+    (lambda f: f.assign(charging=f.charging.astype(object).where(f.index != 4, "")),
+     r"Missing values \(.*column 'charging', row 4\)"),
+    (lambda f: f.assign(charging=f.charging.where(f.index != 5, 2)),
+     r"Flag values other than 0 and 1 \(.*column 'charging', row 5\)"),
+    (lambda f: f.iloc[:1], "at least two rows"),
+    (lambda f: f.assign(soc_frac=f.soc_pct / 100 - 0.05),
+     "'soc_pct' and 'soc_frac' both give the SoC, and disagree"),
+])
+def test_sparse_logs_get_the_dense_checks(tmp_path, edit, words):
+    from ebus_env.io.sparse import load_sparse_log
+
+    load_sparse_log(write(tmp_path, sparse_frame()), DT)
+    with pytest.raises(LogError, match=words):
+        load_sparse_log(write(tmp_path, edit(sparse_frame())), DT)
+
+
+def test_sparse_log_above_top_speed_warns_and_takes_soc_frac(tmp_path):
+    from ebus_env.io.sparse import load_sparse_log
+
+    frame = sparse_frame()
+    log = load_sparse_log(write(tmp_path, frame), DT, max_speed_kmh=80.0)
+    assert log.report.warnings == []
+    frac = load_sparse_log(write(tmp_path, frame.assign(soc_frac=frame.soc_pct / 100)
+                                 .drop(columns="soc_pct")), DT, max_speed_kmh=80.0)
+    np.testing.assert_allclose(frac.profile.measured["soc_frac"],
+                               log.profile.measured["soc_frac"], rtol=1e-12)
+    frame.loc[6:, "distance_km"] += 9.0  # 9 km more in the 300 s after row 5: 122.4 km/h
+    fast = load_sparse_log(write(tmp_path, frame), DT, max_speed_kmh=80.0)
+    assert any("3000 samples (300 s) above the vehicle's top speed 80 km/h (max 122.4 km/h)"
+               in w for w in fast.report.warnings)

@@ -28,6 +28,11 @@ Files named otherwise are mapped with ``columns`` (``{"Velocity [km/h]": "speed_
 ``{"I [A]": {"column": "battery_current_a", "scale": -1}}``) or a preset in ``configs/logs``.
 Other numeric columns are kept, resampled, as measured signals.
 
+Two columns of one quantity (``time_s`` and ``timestamp``, ``speed_kmh`` and ``speed_mps``,
+``soc_pct`` and ``soc_frac``, ``grade_pct`` and ``grade_frac``) are used only when they agree
+within the rounding they are written to: then the finer is used (``timestamp`` always gives
+the clock), else the log is refused. A grade column is used over ``altitude_m``.
+
 Nothing is silently dropped or repaired: a problem raises :class:`~ebus_env.errors.LogError`
 with the file, column, rows and the fix, and every change the loader makes (resampling,
 smoothing, filling, splitting) is listed in :attr:`LoadReport.changes`.
@@ -35,6 +40,10 @@ smoothing, filling, splitting) is listed in :attr:`LoadReport.changes`.
 
 from __future__ import annotations
 
+import lzma
+import re
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,6 +67,10 @@ CANONICAL = {
 FLAGS = ("charging", "door_open")
 GAP_POLICIES = ("error", "split", "hold", "interpolate")
 FILL_POLICIES = ("error", "interpolate")
+COMPRESSED = {".gz": "gzip", ".bz2": "bzip2", ".xz": "xz", ".zip": "zip", ".zst": "zstd"}
+SAME_QUANTITY = (("speed_kmh", "speed_mps", 3.6, "speed"), ("soc_pct", "soc_frac", 100.0, "SoC"),
+                 ("grade_pct", "grade_frac", 100.0, "grade"))
+"""Column pairs that give one quantity (``first = factor * second``)."""
 
 
 @dataclass
@@ -127,7 +140,13 @@ def _read(path: Path) -> pd.DataFrame:
             # user's call, not the loader's
             header = pd.read_csv(path, sep=sep, header=None, nrows=1, dtype=str,
                                  keep_default_na=False, encoding_errors="replace").iloc[0].tolist()
-    except (pd.errors.EmptyDataError, pd.errors.ParserError, OSError, ValueError) as exc:
+    except (EOFError, OSError, ValueError, zlib.error, lzma.LZMAError,
+            zipfile.BadZipFile) as exc:
+        kind = COMPRESSED.get(path.suffix.lower())
+        if kind and not isinstance(exc, ValueError):  # ValueError: the table, not the archive
+            raise LogError(f"The file is truncated or not a valid {kind} file ({exc})",
+                           path=path, fix="copy or download it again, or give it "
+                                          "uncompressed") from None
         raise LogError(f"The file cannot be read as a table: {exc}", path=path,
                        fix="give a CSV (comma or semicolon separated) or Parquet file") from None
     _refuse_repeated(header, path)
@@ -150,12 +169,14 @@ def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
         Path, LoadReport, pd.DataFrame]:
     """Read a log file and map its columns (a mapping or a preset's name); returns the path,
     the report of what was done and the table with canonical column names."""
-    path = Path(path)
+    path = paths.here_or_shipped(path)
     report = LoadReport(str(path))
     if isinstance(columns, (str, Path)):
         columns = column_preset(columns)
     frame = _apply_columns(_read(path), columns, path, report)
     report.rows = len(frame)
+    if len(frame) < 2:
+        raise LogError("The log needs at least two rows", path=path)
     return path, report, frame
 
 
@@ -223,31 +244,40 @@ def _nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
 def _time(frame: pd.DataFrame, path: Path, report: LoadReport,
           given_start_h: float | None = None) -> tuple[np.ndarray, float]:
     """Seconds from the first row, and the time of day of the first row [h]: the log's own
-    clock, else ``given_start_h``, else 00:00 (with a note)."""
-    start_h = None
-    if "time_s" in frame.columns:
-        t = _numeric(frame, "time_s", path)
-    elif "timestamp" in frame.columns:
-        text = frame["timestamp"].astype(str)
-        numeric = pd.to_numeric(text, errors="coerce")
-        if numeric.notna().all():
-            t = numeric.to_numpy(float)
-        else:
-            stamps = pd.to_datetime(text, errors="coerce")
-            bad = np.flatnonzero(stamps.isna().to_numpy())
-            if bad.size:
-                raise LogError("Timestamps that cannot be read", path=path, column="timestamp",
-                               rows=bad, fix="use ISO 8601 date-times or seconds")
-            first = stamps.iloc[0]
-            start_h = first.hour + first.minute / 60 + first.second / 3600
-            if given_start_h is not None:
-                raise LogError(f"The log has date-times (its first row at {first:%H:%M:%S}), "
-                               "and a start time was given too", path=path,
-                               column="timestamp", fix="leave out the start time (--start-time)")
-            t = ((stamps - first).dt.total_seconds()).to_numpy(float)
-    else:
+    clock (date-times in 'timestamp'), else ``given_start_h``, else 00:00 (with a note).
+    'time_s' and 'timestamp' together are used only when they agree."""
+    if "time_s" not in frame.columns and "timestamp" not in frame.columns:
         raise LogError("No time column." + _close_column("time_s", frame.columns), path=path,
                        fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
+    column, start_h = "time_s", None
+    if "timestamp" in frame.columns:
+        t, start_h, step = _timestamps(frame["timestamp"], path, report)
+        column = "timestamp"
+    if "time_s" in frame.columns:
+        seconds = _seconds(frame, path)
+        if column == "time_s":
+            t = seconds
+        else:
+            seconds_step = _rounding(frame["time_s"])
+            tol = step + seconds_step
+            x, y = seconds - seconds[0], t - t[0]  # either may count from any origin
+            off = np.flatnonzero(np.abs(x - y) > tol + 1e-9 * np.abs(y))
+            if off.size:
+                i = off[0]
+                raise LogError(f"'time_s' and 'timestamp' disagree at {off.size} rows (row {i}: "
+                               f"{x[i]:g} s and {y[i]:g} s after the first row)", path=path,
+                               column="time_s", rows=off,
+                               fix="keep one of them: drop or rename the other")
+            if seconds_step < step:  # the finer of the two
+                t, column = seconds, "time_s"
+            clock = "" if start_h is None else \
+                f", the clock (first row at {_hms(start_h)}) from 'timestamp'"
+            report.changes.append(f"'time_s' and 'timestamp' agree (within {tol:g} s): elapsed "
+                                  f"time from '{column}'{clock}")
+    if start_h is not None and given_start_h is not None:
+        raise LogError(f"The log has date-times (its first row at {_hms(start_h)}), "
+                       "and a start time was given too", path=path,
+                       column="timestamp", fix="leave out the start time (--start-time)")
     if start_h is None and given_start_h is not None:
         start_h = given_start_h
     elif start_h is None:
@@ -256,20 +286,102 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport,
                               "(the time of day of passengers, chargers and diagnoses); give its "
                               "start time (--start-time 07:30) or a 'timestamp' column of "
                               "date-times")
+    step = np.diff(t)
+    duplicated = np.flatnonzero(step == 0) + 1
+    if duplicated.size:
+        raise LogError("Duplicated times", path=path, column=column, rows=duplicated,
+                       fix="remove or average the duplicated rows")
+    backwards = np.flatnonzero(step < 0) + 1
+    if backwards.size:
+        raise LogError("Time goes backwards", path=path, column=column, rows=backwards,
+                       fix="sort the log by time, or split it into files at the jumps")
+    return t - t[0], start_h
+
+
+def _hms(hours: float) -> str:
+    s = int(round(hours * 3600))
+    return f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d}"
+
+
+def _seconds(frame: pd.DataFrame, path: Path) -> np.ndarray:
+    """'time_s' as floats: every row has one, and date-times there are named as such."""
+    try:
+        t = _numeric(frame, "time_s", path)
+    except LogError as exc:
+        example = str(frame["time_s"].iloc[exc.rows[0]]).strip()
+        if pd.notna(pd.to_datetime(example, errors="coerce")):
+            raise LogError(f"'time_s' holds date-times (e.g. '{example}'), not seconds",
+                           path=path, column="time_s",
+                           fix="rename the column 'timestamp'") from None
+        raise
     nan = np.flatnonzero(np.isnan(t))
     if nan.size:
         raise LogError("Missing times", path=path, column="time_s", rows=nan,
                        fix="every row needs a time")
-    step = np.diff(t)
-    duplicated = np.flatnonzero(step == 0) + 1
-    if duplicated.size:
-        raise LogError("Duplicated times", path=path, column="time_s", rows=duplicated,
-                       fix="remove or average the duplicated rows")
-    backwards = np.flatnonzero(step < 0) + 1
-    if backwards.size:
-        raise LogError("Time goes backwards", path=path, column="time_s", rows=backwards,
-                       fix="sort the log by time, or split it into files at the jumps")
-    return t - t[0], start_h
+    return t
+
+
+def _timestamps(column: pd.Series, path: Path, report: LoadReport) -> tuple[
+        np.ndarray, float | None, float]:
+    """Seconds from 'timestamp' (date-times or seconds), the first row's time of day [h]
+    (None for seconds) and the step the times are written to. Date-times with UTC offsets
+    count in UTC, so a daylight-saving switch is no jump; the clock starts at the first
+    row's local time."""
+    text = column.astype(str).str.strip()
+    numeric = pd.to_numeric(text, errors="coerce")
+    if numeric.notna().all():
+        return numeric.to_numpy(float), None, _rounding(column)
+    offset = text.str.extract(r":\d\d(?:\.\d+)?\s*(Z|[+-]\d\d(?::?\d\d)?)$")[0]
+    if offset.notna().any() and offset.isna().any():
+        raise LogError("Some date-times have a UTC offset and some not", path=path,
+                       column="timestamp", rows=np.flatnonzero(offset.isna().to_numpy()),
+                       fix="give every date-time its offset (+01:00), or none")
+    # '04/05/2026' is read day- or month-first as its first row suggests
+    ambiguous = re.match(r"\d{1,2}[./-]\d{1,2}[./-]\d{2,4}\b", text.iloc[0]) is not None
+    iso = "write date-times as ISO 8601, year first (2026-05-04 07:30:00)"
+    stamps = pd.to_datetime(text, errors="coerce", utc=True)
+    bad = np.flatnonzero(stamps.isna().to_numpy())
+    if bad.size:
+        raise LogError("Timestamps that cannot be read", path=path, column="timestamp",
+                       rows=bad, fix=(f"dates such as '{text.iloc[0]}' can be day- or "
+                                      f"month-first: {iso}" if ambiguous else
+                                      "use ISO 8601 date-times or seconds"))
+    t = (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy(float)
+    jump = np.flatnonzero(np.diff(t) > 25 * 86400.0)  # longer than any run: no real gap
+    if ambiguous and jump.size:
+        i = jump[0]
+        raise LogError(f"The date-times jump by {(t[i + 1] - t[i]) / 86400:.1f} days from "
+                       f"'{text.iloc[i]}' to '{text.iloc[i + 1]}': are the dates day-first "
+                       "and read month-first (or the reverse)?", path=path, column="timestamp",
+                       rows=[i + 1], fix=iso)
+    first = pd.to_datetime(text.iloc[:1]).iloc[0]  # with its own offset: the local clock
+    start_h = first.hour + first.minute / 60 + first.second / 3600
+    if offset.notna().all():
+        change = np.flatnonzero(offset.to_numpy()[1:] != offset.to_numpy()[:-1]) + 1
+        if change.size:
+            report.changes.append(
+                f"the UTC offset changes within the log ({offset.iloc[change[0] - 1]} to "
+                f"{offset.iloc[change[0]]} at row {change[0]}"
+                f"{f', and {change.size - 1} more' if change.size > 1 else ''}): time counted "
+                f"in UTC; the time of day runs on from the first row's clock "
+                f"(UTC{offset.iloc[0]}), not the logged local time after the change")
+    within = (stamps - stamps.dt.floor("s")).dt.total_seconds().to_numpy()
+    step = 1.0 if not within.any() else (
+        1e-3 if np.allclose(within * 1e3, np.round(within * 1e3)) else 1e-6)
+    return t, start_h, step
+
+
+def _rounding(column: pd.Series) -> float:
+    """The step a column of numbers is written to (0.1 for '12.3', 1e-05 for '1e-05'): its
+    finest cell's; inf when it holds no numbers."""
+    parts = column.astype(str).str.strip().str.extract(
+        r"^([-+]?(?=\.?\d)\d*(?:\.(\d*))?(?:[eE]([-+]?\d+))?)$")
+    written = parts[0].notna().to_numpy()
+    if not written.any():
+        return float("inf")
+    decimals = parts[1].fillna("").str.len().to_numpy()
+    exponent = parts[2].fillna("0").astype(int).to_numpy()
+    return float(np.min(10.0 ** (exponent - decimals)[written]))
 
 
 def _check_period(t: np.ndarray, dt_s: float, path: Path, report: LoadReport) -> float:
@@ -371,6 +483,76 @@ def _check_range(name: str, values: np.ndarray, low: float, high: float, path: P
                        path=path, column=name, rows=bad, fix=fix)
 
 
+def _check_values(frame: pd.DataFrame, values: dict[str, np.ndarray], t: np.ndarray,
+                  path: Path, report: LoadReport, fill: str, check_units: bool) -> None:
+    """Check the numeric columns in ``values`` (and fill them as ``fill`` says), in place:
+    one column per quantity, flags 0/1, missing values, units and ranges."""
+    _one_per_quantity(frame, values, path, report)
+    for flag in FLAGS:
+        if flag in values:
+            v = values[flag]
+            bad = np.flatnonzero(~np.isnan(v) & ~np.isin(v, (0.0, 1.0)))
+            if bad.size:
+                raise LogError("Flag values other than 0 and 1", path=path, column=flag,
+                               rows=bad, fix="use 1 for yes and 0 for no")
+    for name_ in list(values):
+        if np.isnan(values[name_]).all() and name_ not in CANONICAL:
+            report.ignored.append(f"column '{name_}' is empty and was not used")
+            del values[name_]
+            continue
+        values[name_] = _fill_nan(name_, values[name_], t, path, fill, report,
+                                  flag=name_ in FLAGS + ("passengers", "charger_kw"))
+    _check_units(values, t, path, check_units)
+    speed = RANGES["log_speed_kmh"]
+    for column, factor in (("speed_kmh", 1.0), ("speed_mps", 3.6)):
+        if column in values:
+            _check_range(column, factor * values[column], speed.low, speed.high, path,
+                         speed.why, scale=1 / factor)
+    if "soc_frac" in values:
+        _check_range("soc_frac", values["soc_frac"], 0.0, 1.0, path, "SoC as a fraction: 0-1")
+    if "grade_frac" in values:
+        grade = RANGES["log_grade_pct"]
+        _check_range("grade_frac", 100.0 * values["grade_frac"], grade.low, grade.high, path,
+                     grade.why, scale=0.01)
+    for column, range_name in COLUMN_RANGES.items():
+        if column in values:
+            r = RANGES[range_name]
+            _check_range(column, values[column], r.low, r.high, path, r.why, r.open_low)
+
+
+def _one_per_quantity(frame: pd.DataFrame, values: dict[str, np.ndarray], path: Path,
+                      report: LoadReport) -> None:
+    """Two columns of one quantity (``SAME_QUANTITY``) are refused unless they agree within
+    the rounding they are written to; then the finer is used, with a note. Grade is used
+    over altitude (grade from altitude is noisier), with a note."""
+    for first, second, factor, what in SAME_QUANTITY:
+        if first not in values or second not in values:
+            continue
+        x, y = values[first], factor * values[second]
+        both = ~np.isnan(x) & ~np.isnan(y)
+        step_first, step_second = _rounding(frame[first]), factor * _rounding(frame[second])
+        off = np.flatnonzero(both & (np.abs(x - y) > step_first + step_second
+                                     + 1e-9 * np.abs(x)))
+        keep = "keep one of them: drop or rename the other (or map only one with columns=)"
+        if not both.any():
+            raise LogError(f"'{first}' and '{second}' both give the {what}, and no row has "
+                           "both to compare", path=path, column=second, fix=keep)
+        if off.size:
+            i = off[0]
+            raise LogError(f"'{first}' and '{second}' both give the {what}, and disagree at "
+                           f"{off.size} rows (row {i}: {first} {x[i]:g}, {second} "
+                           f"{values[second][i]:g} x {factor:g} = {y[i]:g})", path=path,
+                           column=second, rows=off, fix=keep)
+        used, dropped = (second, first) if step_second < step_first else (first, second)
+        del values[dropped]
+        report.changes.append(f"'{first}' and '{second}' agree within their rounding: "
+                              f"'{used}' used, '{dropped}' not")
+    grade = [c for c in ("grade_pct", "grade_frac") if c in values]
+    if grade and "altitude_m" in values:
+        report.changes.append(f"grade from '{grade[0]}', not from 'altitude_m' (noisier); "
+                              "altitude kept as a measured signal")
+
+
 def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = None,
              gaps: str = "error", max_gap_s: float | None = None, fill: str = "error",
              check_units: bool = True, grade_window_m: float = DEFAULT_WINDOW_M,
@@ -389,7 +571,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     gaps
         What to do with time gaps longer than ``max_gap_s``: ``error`` (default), ``split``
         (separate segments, each simulated from its own measured SoC), ``hold`` (hold the last
-        sample) or ``interpolate``.
+        sample before each gap across it) or ``interpolate``.
     max_gap_s
         Longest step that is not a gap (default: the larger of 10 s and 5 sample periods).
     fill
@@ -409,15 +591,11 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     if fill not in FILL_POLICIES:
         raise ConfigError(f"fill must be one of {FILL_POLICIES}, got '{fill}'.")
     path, report, frame = open_log(path, columns)
-    if len(frame) < 2:
-        raise LogError("The log needs at least two rows", path=path)
     if start_h is not None:
         check("log_start_h", start_h)
     t, start_h = _time(frame, path, report, start_h)
 
-    speed_col = "speed_kmh" if "speed_kmh" in frame.columns else (
-        "speed_mps" if "speed_mps" in frame.columns else None)
-    if speed_col is None:
+    if "speed_kmh" not in frame.columns and "speed_mps" not in frame.columns:
         raise LogError("No speed column." + _close_column("speed_kmh", frame.columns), path=path,
                        fix="name it 'speed_kmh' or 'speed_mps', or map it with columns=")
     values: dict[str, np.ndarray] = {}
@@ -432,34 +610,9 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
             except LogError:
                 report.ignored.append(f"column '{name_}' is not numeric and was not used")
     _unknown_columns(values, columns is not None, report)
-    for flag in FLAGS:
-        if flag in values:
-            v = values[flag]
-            bad = np.flatnonzero(~np.isnan(v) & ~np.isin(v, (0.0, 1.0)))
-            if bad.size:
-                raise LogError("Flag values other than 0 and 1", path=path, column=flag,
-                               rows=bad, fix="use 1 for yes and 0 for no")
-    for name_ in list(values):
-        if np.isnan(values[name_]).all() and name_ not in CANONICAL:
-            report.ignored.append(f"column '{name_}' is empty and was not used")
-            del values[name_]
-            continue
-        values[name_] = _fill_nan(name_, values[name_], t, path, fill, report,
-                                  flag=name_ in FLAGS + ("passengers", "charger_kw"))
-    _check_units(values, t, path, check_units)
+    _check_values(frame, values, t, path, report, fill, check_units)
+    speed_col = "speed_kmh" if "speed_kmh" in values else "speed_mps"
     speed_mps = values[speed_col] / 3.6 if speed_col == "speed_kmh" else values[speed_col]
-    speed = RANGES["log_speed_kmh"]
-    _check_range(speed_col, speed_mps * 3.6, speed.low, speed.high, path, speed.why)
-    if "soc_frac" in values:
-        _check_range("soc_frac", values["soc_frac"], 0.0, 1.0, path, "SoC as a fraction: 0-1")
-    if "grade_frac" in values:
-        grade = RANGES["log_grade_pct"]
-        _check_range("grade_frac", 100.0 * values["grade_frac"], grade.low, grade.high, path,
-                     grade.why, scale=0.01)
-    for column, range_name in COLUMN_RANGES.items():
-        if column in values:
-            r = RANGES[range_name]
-            _check_range(column, values[column], r.low, r.high, path, r.why, r.open_low)
     if "soc_pct" not in values and "soc_frac" not in values:
         report.warnings.append("the log has no SoC column (soc_pct or soc_frac): nothing to "
                                "compare, and a simulation starts at the given or default SoC")
@@ -506,46 +659,48 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
     g = grid(ts[0], ts[-1], dt_s)
     period = float(np.median(np.diff(ts))) if b - a > 1 else dt_s
     kind = "mean" if period < dt_s * 0.999 else "linear"
-    if gaps == "hold":
-        kind_cont = "hold"
-    else:
-        kind_cont = kind
     if a == 0 and abs(period - dt_s) > 1e-9:
         how = "window means" if kind == "mean" else "linear interpolation"
-        held = "; holding across gaps" if gaps == "hold" else ""
-        report.changes.append(f"resampled from {period:g} s to {dt_s:g} s ({how}{held})")
+        report.changes.append(f"resampled from {period:g} s to {dt_s:g} s ({how})")
+    # gaps='hold': grid times inside a gap keep the sample before it; elsewhere as any log
+    last = np.clip(np.searchsorted(ts, g + 1e-9, side="right") - 1, 0, len(ts) - 1)
+    in_gap = np.append(np.diff(ts), 0.0)[last] > limit if gaps == "hold" else None
 
-    def rs(name_, data, flag=False):
-        return resample(ts, data[a:b], g, dt_s, "hold" if flag else kind_cont)
+    def rs(data, flag=False, sliced=False):
+        data = data if sliced else data[a:b]
+        out = resample(ts, data, g, dt_s, "hold" if flag else kind)
+        if in_gap is not None:
+            out[in_gap] = data[last[in_gap]]
+        return out
 
-    channels = {"speed_ref_mps": np.maximum(rs(speed_col, speed_mps), 0.0)}
+    channels = {"speed_ref_mps": np.maximum(rs(speed_mps), 0.0)}
     if "grade_frac" in values:
-        channels["grade_frac"] = rs("grade_frac", values["grade_frac"])
+        channels["grade_frac"] = rs(values["grade_frac"])
     elif "grade_pct" in values:
-        channels["grade_frac"] = rs("grade_pct", values["grade_pct"] / 100.0)
+        channels["grade_frac"] = rs(values["grade_pct"] / 100.0)
     elif "altitude_m" in values:
         dist = np.concatenate([[0.0], np.cumsum(0.5 * (speed_mps[a + 1:b] + speed_mps[a:b - 1])
                                                 * np.diff(ts))])
         grade, clipped = grade_from_altitude(dist, values["altitude_m"][a:b], grade_window_m)
-        channels["grade_frac"] = rs("grade_frac", grade)
+        channels["grade_frac"] = rs(grade, sliced=True)
         if a == 0:
             report.changes.append(f"grade from 'altitude_m', smoothed over {grade_window_m:g} m "
                                   f"of distance" + (f"; {clipped} samples clipped at +-15 %"
                                                     if clipped else ""))
     if "ambient_degc" in values:
-        channels["ambient_degc"] = rs("ambient_degc", values["ambient_degc"])
+        channels["ambient_degc"] = rs(values["ambient_degc"])
     if "passengers" in values:
-        channels["passenger_count"] = rs("passengers", values["passengers"], flag=True)
+        channels["passenger_count"] = rs(values["passengers"], flag=True)
     if "charging" in values:
-        channels["charger_connected"] = rs("charging", values["charging"], flag=True)
+        channels["charger_connected"] = rs(values["charging"], flag=True)
     if "charger_kw" in values:
-        channels["charger_rating_w"] = rs("charger_kw", values["charger_kw"] * 1e3, flag=True)
+        channels["charger_rating_w"] = rs(values["charger_kw"] * 1e3, flag=True)
     if "door_open" in values:
-        channels["door_open"] = rs("door_open", values["door_open"], flag=True)
+        channels["door_open"] = rs(values["door_open"], flag=True)
     if "solar_w_per_m2" in values:
-        channels["solar_w_per_m2"] = rs("solar_w_per_m2", values["solar_w_per_m2"])
+        channels["solar_w_per_m2"] = rs(values["solar_w_per_m2"])
     if "logged_load_kw" in values:
-        channels["logged_load_w"] = rs("logged_load_kw", values["logged_load_kw"] * 1e3)
+        channels["logged_load_w"] = rs(values["logged_load_kw"] * 1e3)
     measured, samples = {}, {}
     soc = values["soc_pct"][a:b] / 100.0 if "soc_pct" in values else (
         values["soc_frac"][a:b] if "soc_frac" in values else None)
@@ -558,10 +713,11 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
             "charger_kw", "door_open", "solar_w_per_m2", "soc_pct", "soc_frac", "logged_load_kw"}
     for name_, data in values.items():
         if name_ not in used:
-            measured[name_] = rs(name_, data)
+            measured[name_] = rs(data)
     label = name or Path(path).stem
     segment_start_h = (start_h + ts[0] / 3600.0) % 24.0
-    return Profile(channels, dt_s, label, segment_start_h, measured, samples=samples)
+    return Profile(channels, dt_s, label, segment_start_h, measured, samples=samples,
+                   start_s=float(ts[0]))
 
 
 def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:

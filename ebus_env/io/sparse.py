@@ -26,43 +26,52 @@ import numpy as np
 from ebus_env.cycles import Cycle, load_cycle
 from ebus_env.errors import LogError
 from ebus_env.inputs import MAX_STEPS, RANGES, check
-from ebus_env.io.measured import MeasuredLog, _check_range, _numeric, _time, open_log
+from ebus_env.io.measured import (
+    MeasuredLog,
+    _check_limits,
+    _check_values,
+    _numeric,
+    _time,
+    open_log,
+)
 from ebus_env.profile import Profile
+
+SPARSE_COLUMNS = ("distance_km", "soc_pct", "soc_frac", "charging", "ambient_degc")
+"""The columns a sparse log is rebuilt from; others are not read."""
 
 
 def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "sort2",
                     columns: dict | str | None = None, max_speed_kmh: float = 80.0,
                     name: str | None = None, start_h: float | None = None) -> MeasuredLog:
-    """Read a sparse log (``time_s``, ``distance_km`` cumulative, ``soc_pct``, optional
-    ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module docstring).
-    ``start_h``: the time of day of the first row of a log without date-times, as in
-    :func:`~ebus_env.io.measured.load_log`."""
+    """Read a sparse log (``time_s``, ``distance_km`` cumulative, ``soc_pct`` or ``soc_frac``,
+    optional ``charging``, ``ambient_degc``) and reconstruct a 10 Hz profile (see module
+    docstring); its columns pass the checks of :func:`~ebus_env.io.measured.load_log`, and
+    every sample needs every value. ``start_h``: the time of day of the first row of a log
+    without date-times, as in :func:`~ebus_env.io.measured.load_log`."""
     path, report, frame = open_log(path, columns)
     if start_h is not None:
         check("log_start_h", start_h)
     t, start_h = _time(frame, path, report, start_h)
-    for required in ("distance_km", "soc_pct"):
-        if required not in frame.columns:
-            raise LogError(f"A sparse log needs the column '{required}'", path=path,
-                           fix="give cumulative distance in 'distance_km' and SoC in 'soc_pct'")
-    distance = _numeric(frame, "distance_km", path) * 1000.0
-    soc = _numeric(frame, "soc_pct", path) / 100.0
-    for label, values in (("distance_km", distance), ("soc_pct", soc)):
-        bad = np.flatnonzero(~np.isfinite(values))
+    if "distance_km" not in frame.columns or not {"soc_pct", "soc_frac"} & set(frame.columns):
+        raise LogError("A sparse log needs the columns 'distance_km' and 'soc_pct' (or "
+                       "'soc_frac')", path=path,
+                       fix="give cumulative distance in 'distance_km' and SoC in 'soc_pct'")
+    values = {c: _numeric(frame, c, path) for c in SPARSE_COLUMNS if c in frame.columns}
+    for label, column in values.items():
+        bad = np.flatnonzero(np.isnan(column))
         if bad.size:
             raise LogError("Missing values", path=path, column=label, rows=bad,
                            fix="a sparse log needs every sample")
+    _check_values(frame, values, t, path, report, fill="error", check_units=True)
+    distance = values["distance_km"] * 1000.0
+    soc = values["soc_pct"] / 100.0 if "soc_pct" in values else values["soc_frac"]
     back = np.flatnonzero(np.diff(distance) < -1e-6) + 1
     if back.size:
         raise LogError("Distance decreases", path=path, column="distance_km", rows=back,
                        fix="give the cumulative distance (odometer)")
-    _check_sparse(t, distance, soc, dt_s, path)
-    charging = _numeric(frame, "charging", path) if "charging" in frame.columns \
-        else np.zeros(len(t))
-    ambient = _numeric(frame, "ambient_degc", path) if "ambient_degc" in frame.columns else None
-    if ambient is not None:
-        amb = RANGES["ambient_degc"]
-        _check_range("ambient_degc", ambient, amb.low, amb.high, path, amb.why)
+    _check_sparse(t, distance, dt_s, path)
+    charging = values.get("charging", np.zeros(len(t)))
+    ambient = values.get("ambient_degc")
     base = cycle if isinstance(cycle, Cycle) else load_cycle(cycle)
     pieces, connected = [], []
     kinds = {"charging": 0, "standing": 0, "cycle": 0, "constant": 0, "split": 0}
@@ -104,17 +113,13 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
         "charger")
     profile = Profile(channels, dt_s, name or path.stem, start_h, measured,
                       list(report.changes), samples={"soc_frac": rows})
+    _check_limits([profile], max_speed_kmh, None, report)
     return MeasuredLog([profile], report)
 
 
-def _check_sparse(t, distance_m, soc_frac, dt_s: float, path: Path) -> None:
-    """SoC in percent, intervals of at least one step with a plausible mean speed, a day that
-    fits in one run."""
-    soc = RANGES["log_soc_pct"]
-    _check_range("soc_pct", 100.0 * soc_frac, soc.low, soc.high, path, soc.why)
-    if np.max(soc_frac) <= 0.01:
-        raise LogError(f"SoC looks like a fraction, not percent (max {100 * np.max(soc_frac):g})",
-                       path=path, column="soc_pct", fix="give SoC in percent (90 for 90 %)")
+def _check_sparse(t, distance_m, dt_s: float, path: Path) -> None:
+    """Intervals of at least one step with a plausible mean speed, a day that fits in one
+    run."""
     short = np.flatnonzero(np.diff(t) < dt_s) + 1
     if short.size:
         raise LogError(f"Samples closer than one time step ({dt_s:g} s)", path=path,
