@@ -154,6 +154,18 @@ def _print_report(report, path, who: str, console) -> None:
                       soft_wrap=True)
 
 
+def _refuse_same_log(option: str, given, logs, role: str, why: str) -> None:
+    """Refuse a log of ``option`` that is one of ``logs`` (``role``) or a copy of it."""
+    from ebus_env.errors import ConfigError
+    from ebus_env.outputs import same_bytes, same_file
+
+    for other, log in itertools.product(given or [], logs):
+        if Path(other).exists() and Path(log).exists() and (
+                same_file(Path(other), Path(log)) or same_bytes(other, log)):
+            raise ConfigError(f"{option} {other} is {role} ({log}) or a copy of it: {why}. "
+                              "Fix: give a log of another day.")
+
+
 def _inputs(*groups, effects=()) -> list[Path]:
     """The files a command reads: the paths given, and the file of each ``file.py:Name``."""
     files = [Path(item.split(":", 1)[0]) for item in _split(list(effects or []))
@@ -500,6 +512,8 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     for name, value in (("population", population), ("iterations", iterations)):
         if value is not None:
             check(name, value, f"--{name}")
+    _refuse_same_log("--validate", validate, logs, "a log the fit is tuned on", "a "
+                     "validation log scores the fit on a day it was not tuned on")
     cfg = load_calibration_config(config)
     bus = choice.load()
     plots = [] if plot is None else [plot, plot.with_name(plot.stem + "_history" + plot.suffix),
@@ -649,9 +663,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     from ebus_env.diagnostics import diagnose as run_diagnosis
     from ebus_env.diagnostics.ladder import Freedom, as_effect, check_known
     from ebus_env.diagnostics.report import console_tables
-    from ebus_env.errors import ConfigError, LogError
+    from ebus_env.errors import LogError
     from ebus_env.inputs import check
-    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, same_bytes, same_file
+    from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES
 
     console = _console()
     if window_s is not None:
@@ -673,13 +687,9 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
                    choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],
                                                effects=add))
-    for normal_log, log in itertools.product(reference or [], logs):
-        if Path(normal_log).exists() and Path(log).exists() and (
-                same_file(Path(normal_log), Path(log)) or same_bytes(normal_log, log)):
-            raise ConfigError(f"--reference {normal_log} is the log being diagnosed ({log}) "
-                              "or a copy of it: the reference is a normal day of the same bus, "
-                              "which the model is compared against. Fix: give a log of another "
-                              "day.")
+    _refuse_same_log("--reference", reference, logs, "the log being diagnosed", "the "
+                     "reference is a normal day of the same bus, which the model is compared "
+                     "against")
     model = bus.build()
     notes: list[str] = []
     profiles = _load_logs(logs, model, model.params, handling, console, notes)

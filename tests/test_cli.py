@@ -96,6 +96,16 @@ def test_a_fleet_calibration_refuses_the_options_it_does_not_take(tmp_path):
     assert not (tmp_path / "t.csv").exists() and "fleet calibration:" not in out
 
 
+def test_a_day_is_not_its_own_validation_or_reference(tmp_path):
+    log = ROOT / "data/measured/hidden/control.csv.gz"
+    copy = tmp_path / "copy.csv.gz"
+    copy.write_bytes(log.read_bytes())
+    code, out = invoke("calibrate", log, "--validate", copy)
+    assert code == 2 and "--validate" in out and "is a log the fit is tuned on" in out
+    code, out = invoke("diagnose", log, "--reference", copy)
+    assert code == 2 and "is the log being diagnosed" in out and "another day" in out
+
+
 def test_the_documented_paths_into_shipped_folders_work_from_any_folder(tmp_path, monkeypatch):
     """After a wheel install there is no configs/ or data/ in the working folder: the paths
     the documentation gives name the shipped files."""
