@@ -152,3 +152,27 @@ class Profile:
                        self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
                        {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
                        samples, self.start_s + start * self.dt_s)
+
+
+def as_profiles(profiles, what: str = "profiles") -> list[Profile]:
+    """``profiles`` as a non-empty list of :class:`Profile`, or an error naming what was given
+    (a loaded log's profiles are ``log.profiles``)."""
+    from ebus_env.errors import ConfigError
+
+    if isinstance(profiles, Profile):
+        return [profiles]
+    if hasattr(profiles, "profiles") and not isinstance(profiles, (str, bytes)):
+        raise ConfigError(f"{what}: give the log's profiles (log.profiles), not the "
+                          f"{type(profiles).__name__}.")
+    try:
+        out = list(profiles)
+    except TypeError:
+        raise ConfigError(f"{what}: give a list of Profile, not a "
+                          f"{type(profiles).__name__}.") from None
+    if not out:
+        raise ConfigError(f"{what}: no profiles; give at least one (load_log(path).profiles).")
+    for p in out:
+        if not isinstance(p, Profile):
+            raise ConfigError(f"{what}: give a list of Profile; one item is a "
+                              f"{type(p).__name__}.")
+    return out

@@ -467,3 +467,26 @@ def test_an_effect_numba_cannot_compile_is_named_with_its_file_line_and_fix():
         "    return drag_of(coef_n_per_mps, speed_mps)") + 1
     assert "'linear_drag'" in text and f"{source}, line {call_line}" in text
     assert "@helper" in text and len(text.splitlines()) == 1
+
+
+@pytest.mark.parametrize(("name", "returned", "expected"), [
+    ("two_values", "returns 2 value(s) (float, float)", "must return 1 number(s): its contribution"),
+    ("text_value", "returns 1 value(s) (str)", "must return 1 number(s): its contribution"),
+    ("forgotten_state", "returns 1 value(s) (float)",
+     "must return 2 number(s): its contribution, run_s_next"),
+])
+def test_an_effect_that_returns_what_its_sink_does_not_take_is_named(name, returned, expected):
+    """Numba fails in the generated loop, where it names no line of the user's: the effect is
+    found by calling it once in Python."""
+    from pathlib import Path
+
+    from ebus_env.config import load_bus
+    from ebus_env.errors import CompositionError
+
+    source = Path(__file__).parent / "user_effects" / "wrong_returns.py"
+    model = load_bus("12m").with_effect(f"{source}:{name}").build()
+    with pytest.raises(CompositionError) as info:
+        model.compile()
+    text = str(info.value)
+    assert f"Effect '{name}' ({source}, line" in text and returned in text and expected in text
+

@@ -256,6 +256,39 @@ def test_bounds_and_values_are_checked(bus12):
         model.param_vector({"aero_drag.drag_cof": 0.5})
 
 
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"soc_start": 95}, "give the SoC as a fraction in [0, 1]. Did you mean 0.95 (95 %)?"),
+    ({"soc_start": -0.1}, "soc_start = -0.1: give the SoC as a fraction"),
+    ({"soc_start": float("nan")}, "soc_start = nan"),
+    ({"params": "vector"}, "params vector"),
+    ({"params": "x100"}, "'vehicle_body.curb_mass_kg' = 1300000.0 (params vector) lies outside"),
+    ({"params": np.ones(3)}, "a vector of shape (3,); the model has"),
+    ({"params": [0.6]}, "not a list"),
+    ({"record_every": 0}, "record_every = 0: keep every k-th step"),
+])
+def test_a_run_refuses_a_start_or_parameters_it_cannot_mean(model12, kwargs, words):
+    """A SoC of 95 is not 9500 %, and a parameter vector is checked like overrides are."""
+    day = constant_profile(10.0, 600.0)
+    given = kwargs.get("params")
+    if isinstance(given, str):  # vectors of the model's length: one NaN, or all 100 times
+        bad = model12.params * 100 if given == "x100" else model12.params.copy()
+        bad[0] = np.nan if given == "vector" else bad[0]
+        kwargs = {"params": bad}
+    with pytest.raises(ConfigError) as info:
+        model12.simulate(day, **kwargs)
+    assert words in str(info.value)
+    with pytest.raises(ConfigError, match="Did you mean 0.95"):
+        model12.simulate_batch(day, [{}], soc_start=95)
+    with pytest.raises(ConfigError, match="no parameter sets"):
+        model12.simulate_batch(day, [])
+    with pytest.raises(ConfigError, match="Unknown trace signal 'soc'"):
+        model12.simulate_batch(day, [{}], record=["soc"])
+    with pytest.raises(ConfigError, match="needs a Profile"):
+        model12.simulate(None)
+    assert model12.simulate(day, model12.params, soc_start=0.95).summary()["soc_start_pct"] \
+        == pytest.approx(95.0)
+
+
 def test_user_effect_from_its_own_file_runs_in_the_compiled_core(bus12):
     bus = bus12.without_effect("cabin_hvac").with_effect(HEADWIND)
     model = bus.build()

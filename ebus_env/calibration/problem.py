@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ebus_env.errors import ConfigError
-from ebus_env.profile import Profile
+from ebus_env.profile import Profile, as_profiles
 
 PAPER_PARAMS = (
     "passenger_load.load_frac",
@@ -238,6 +238,10 @@ class CalibrationProblem:
         self.model = model
         self.notes: list[str] = []
         self.warnings: list[str] = []
+        profiles = as_profiles(profiles, "calibrate")
+        if isinstance(free, str):
+            raise ConfigError(f"free = {free!r}: give a list of qualified names, "
+                              f"[{free!r}].")
         fixed = dict(fixed or {})
         self.base = model.param_vector(fixed)
         if free is None:
@@ -247,8 +251,8 @@ class CalibrationProblem:
                 self.notes.append(f"the model lacks {', '.join(missing)}: not fitted")
         free = [p for p in free if p not in fixed]
         if not free:
-            raise ConfigError("Nothing to calibrate: give free parameters (--params) that the "
-                              "model has and that are not fixed.")
+            raise ConfigError("Nothing to calibrate: give free parameters (--params, or free= "
+                              "in Python) that the model has and that are not fixed.")
         for name in free:
             model.param_index(name)  # unknown names fail with a close match
         self.free = list(free)

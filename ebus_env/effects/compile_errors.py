@@ -19,9 +19,12 @@ def _where(function) -> tuple[str, int, list[str]]:
     return inspect.getsourcefile(function) or "?", first, lines
 
 
-def explain(exc: BaseException) -> CompositionError | None:
+def explain(exc: BaseException, effects=()) -> CompositionError | None:
     """The effect a numba ``TypingError`` comes from, as a :class:`CompositionError` (None
-    when ``exc`` is no compile failure or no registered effect matches it)."""
+    when ``exc`` is no compile failure or no effect can be blamed). Where numba names no line
+    of an effect (a wrong number or type of return values fails in the generated loop), the
+    model's own ``effects`` are called once in Python to find the one that returns what its
+    sink or slot does not take."""
     try:
         from numba.core.errors import TypingError
     except ImportError:  # pragma: no cover - numba is a core dependency
@@ -49,4 +52,35 @@ def explain(exc: BaseException) -> CompositionError | None:
                 what = eff.name if site == "main" else f"{eff.name} ({site})"
                 return CompositionError(f"Effect '{what}' ({file}, line {hit}) cannot be "
                                         f"compiled by numba: {cause}. {_FIX}")
+    for eff in effects:
+        for site, call in eff.calls.items():
+            wrong = _wrong_returns(call)
+            if wrong is not None:
+                file, first, _ = _where(call.function)
+                what = eff.name if site == "main" else f"{eff.name} ({site})"
+                role = f"a contribution to {eff.sink}" if eff.sink else f"slot {eff.slot}"
+                return CompositionError(
+                    f"Effect '{what}' ({file}, line {first}) returns {wrong}; as {role} it must "
+                    f"return {len(call.returns)} number(s): "
+                    f"{', '.join(r.replace('__contribution__', 'its contribution') for r in call.returns)}. "
+                    "Fix: return exactly these, in this order (a state's next value for each "
+                    "state it keeps, named in returns=).")
     return None
+
+
+def _wrong_returns(call) -> str | None:
+    """What ``call`` returns when called in Python with 1.0 for every argument, where that is
+    not as many numbers as it declares (None when it is, or when the call fails on such
+    arguments: then it is not the return values numba tripped over)."""
+    import numbers
+
+    try:
+        out = call.function(*[1.0] * len(call.arguments))
+    except Exception:  # a table, a division by zero...: not this check's to judge
+        return None
+    values = out if isinstance(out, tuple) else (out,)
+    numeric = all(isinstance(v, numbers.Number) and not isinstance(v, complex) for v in values)
+    if numeric and len(values) == len(call.returns):
+        return None
+    kinds = ", ".join(type(v).__name__ for v in values)
+    return f"{len(values)} value(s) ({kinds})"

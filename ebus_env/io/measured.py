@@ -169,6 +169,12 @@ def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
         Path, LoadReport, pd.DataFrame]:
     """Read a log file and map its columns (a mapping or a preset's name); returns the path,
     the report of what was done and the table with canonical column names."""
+    if not isinstance(path, (str, Path)):
+        table = isinstance(path, pd.DataFrame)
+        raise ConfigError(f"A log is read from its file (CSV or Parquet), not from a "
+                          f"{type(path).__name__}. Fix: give its path" + (
+                              ", or write the table first: frame.to_csv(path, index=False)"
+                              if table else "") + ".")
     path = paths.here_or_shipped(path)
     report = LoadReport(str(path))
     if isinstance(columns, (str, Path)):

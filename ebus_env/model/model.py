@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping, Sequence
+from numbers import Integral
 
 import numpy as np
 
@@ -145,6 +146,23 @@ class Model:
                 f"bounds [{low[i]}, {high[i]}] {self._declared[self.param_names[i]].unit}."
             )
 
+    def checked_vector(self, params: Mapping[str, float] | np.ndarray | None) -> np.ndarray:
+        """A full parameter vector from overrides by name (:meth:`param_vector`) or a vector
+        given whole: one value per ``param_names``, each finite and inside its bounds."""
+        if params is None or isinstance(params, Mapping):
+            return self.param_vector(params)
+        if not isinstance(params, np.ndarray):
+            raise ConfigError(f"params: give a mapping of qualified names to values "
+                              f"({{'aero_drag.drag_coef': 0.6}}) or a numpy vector of "
+                              f"{len(self.param_names)} values in model.param_names' order, not "
+                              f"a {type(params).__name__}.")
+        vec = np.asarray(params, dtype=float)
+        if vec.shape != (len(self.param_names),):
+            raise ConfigError(f"params: a vector of shape {vec.shape}; the model has "
+                              f"{len(self.param_names)} parameters (model.param_names).")
+        self._check_in_bounds(vec, "params vector")
+        return vec
+
     def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """The model's parameter values with ``overrides`` (qualified names) applied."""
         vec = self.params.copy()
@@ -155,11 +173,14 @@ class Model:
 
     def param_matrix(self, rows: Sequence[Mapping[str, float]] | np.ndarray) -> np.ndarray:
         """(N, n_params) matrix from a list of override mappings, or a checked copy of one."""
+        if len(rows) == 0:
+            raise ConfigError("params: no parameter sets; give one mapping (or matrix row) per "
+                              "bus to run.")
         if isinstance(rows, np.ndarray):
             matrix = np.array(rows, dtype=float, ndmin=2)
-            if matrix.shape[1] != len(self.param_names):
-                raise ValueError(
-                    f"Parameter matrix has {matrix.shape[1]} columns; the model has "
+            if matrix.ndim != 2 or matrix.shape[1] != len(self.param_names):
+                raise ConfigError(
+                    f"Parameter matrix of shape {matrix.shape}; the model has "
                     f"{len(self.param_names)} parameters (see model.param_names).")
             for row in matrix:
                 self._check_in_bounds(row, "batch row")
@@ -169,6 +190,9 @@ class Model:
     # -- inputs and states ------------------------------------------------------------------
     def input_array(self, profile: Profile) -> np.ndarray:
         """(n_inputs, n_steps) input array of a profile, channels in ``input_names`` order."""
+        if not isinstance(profile, Profile):
+            raise ConfigError(f"A run needs a Profile (service_day(...), or load_log(...).profile "
+                              f"/ .profiles), not a {type(profile).__name__}.")
         if abs(profile.dt_s - self.dt_s) > 1e-12:
             raise ConfigError(
                 f"Profile '{profile.name}' is on a {profile.dt_s} s grid but the model steps "
@@ -194,7 +218,7 @@ class Model:
             for state in eff.states:
                 values[state.name] = float(state.initial(own.get(eff.name, {}), first_inputs))
         if soc_start is not None:
-            overrides["soc_frac"] = soc_start
+            overrides["soc_frac"] = checked_soc(soc_start)
         for name, value in overrides.items():
             if name not in values:
                 raise unknown_name("state", name, values)
@@ -372,7 +396,7 @@ class Model:
         try:
             run_chunks(lambda lo, hi: kernel(*args, lo, hi), edges)
         except Exception as exc:  # a user's effect numba cannot compile: say which and why
-            explained = explain(exc)
+            explained = explain(exc, self.effects)
             if explained is None:
                 raise
             raise explained from exc
@@ -409,7 +433,9 @@ class Model:
         """
         from ebus_env.model.results import SimulationResult
 
-        vec = params if isinstance(params, np.ndarray) else self.param_vector(params)
+        vec = self.checked_vector(params)
+        if record:
+            _check_record_every(record_every)
         inputs = self.input_array(profile)
         if soc_start is None:
             soc_start = _first_measured_soc(profile)
@@ -450,6 +476,11 @@ class Model:
         states0 = np.array([self.initial_state(row, first, soc_start, **measured)
                             for row in matrix])
         states = states0.copy()
+        for name in record:
+            if name not in self.trace_names:
+                raise unknown_name("trace signal", name, self.trace_names, "model.trace_names")
+        if len(record):
+            _check_record_every(record_every)
         sel = np.array([self.trace_names.index(n) for n in record], dtype=np.int64)
         n = inputs.shape[1]
         out = np.zeros((len(matrix), -(-n // record_every) if len(sel) else 0, len(sel)), np.float32)
@@ -468,6 +499,27 @@ def differing_columns(params: np.ndarray) -> frozenset[int]:
     """Columns where any row differs from the first, bit for bit (-0.0 and NaN differ too)."""
     bits = np.ascontiguousarray(params, dtype=float).view(np.int64)
     return frozenset(np.flatnonzero((bits != bits[:1]).any(axis=0)).tolist())
+
+
+def checked_soc(soc_start) -> float:
+    """A starting SoC as a fraction in [0, 1], or an error that says so (95 is 0.95)."""
+    try:
+        value = float(soc_start)
+    except (TypeError, ValueError):
+        raise ConfigError(f"soc_start = {soc_start!r}: give the SoC as a fraction in [0, 1]."
+                          ) from None
+    if isinstance(soc_start, bool) or not 0.0 <= value <= 1.0:  # NaN fails too
+        hint = f" Did you mean {value / 100:g} ({value:g} %)?" if 1.0 < value <= 100.0 else ""
+        raise ConfigError(f"soc_start = {soc_start!r}: give the SoC as a fraction in [0, 1]."
+                          f"{hint}")
+    return value
+
+
+def _check_record_every(record_every) -> None:
+    if isinstance(record_every, bool) or not isinstance(record_every, Integral) \
+            or record_every < 1:
+        raise ConfigError(f"record_every = {record_every!r}: keep every k-th step, a whole "
+                          "number >= 1.")
 
 
 def _first_measured_soc(profile: Profile) -> float | None:
