@@ -166,6 +166,13 @@ def _refuse_same_log(option: str, given, logs, role: str, why: str) -> None:
                               "Fix: give a log of another day.")
 
 
+def _refuse_twice(logs) -> None:
+    """Refuse a log given twice (or with a copy of it): its windows would count twice."""
+    for i, log in enumerate(logs):
+        _refuse_same_log("log", logs[i + 1:], [log], "a log given already", "each day's windows "
+                         "would count twice and its errors look more certain than they are")
+
+
 def _inputs(*groups, effects=()) -> list[Path]:
     """The files a command reads: the paths given, and the file of each ``file.py:Name``."""
     files = [Path(item.split(":", 1)[0]) for item in _split(list(effects or []))
@@ -512,6 +519,7 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     for name, value in (("population", population), ("iterations", iterations)):
         if value is not None:
             check(name, value, f"--{name}")
+    _refuse_twice(logs)
     _refuse_same_log("--validate", validate, logs, "a log the fit is tuned on", "a "
                      "validation log scores the fit on a day it was not tuned on")
     cfg = load_calibration_config(config)
@@ -687,6 +695,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
     _check_outputs([(html, "--html", HTML_SUFFIXES), (json_path, "--json", JSON_SUFFIXES)],
                    choice.files(bus) + _inputs([*logs, *(reference or [])], [_config_file(config)],
                                                effects=add))
+    _refuse_twice(logs)
     _refuse_same_log("--reference", reference, logs, "the log being diagnosed", "the "
                      "reference is a normal day of the same bus, which the model is compared "
                      "against")
@@ -739,7 +748,8 @@ def cycles():
         from ebus_env.cycles import CYCLES, load_cycle
 
         table = Table(title="driving cycles (data/cycles)")
-        for col in ("name", "duration s", "distance km", "mean km/h", "max km/h", "description"):
+        table.add_column("name", no_wrap=True, overflow="fold")  # a name is typed: never cut
+        for col in ("duration s", "distance km", "mean km/h", "max km/h", "description"):
             table.add_column(col)
         for name in CYCLES:
             c = load_cycle(name)
@@ -795,10 +805,13 @@ def demo(
     """The main job on bundled data: simulate bus days and measured trips, write a report."""
 
     def body():
-        from ebus_env.demo import run_demo
+        from ebus_env.demo import BMW_DIR, run_demo
+        from ebus_env.diagnostics.hidden import OUT_DIR
         from ebus_env.outputs import check_folder
 
-        check_folder(out, "--out")
+        # not into the folders of the logs it reads: a report is no shipped data
+        check_folder(out, "--out", inputs=[next(BMW_DIR.glob("*.csv")),
+                                           next(OUT_DIR.glob("*.csv.gz"))])
         path = run_demo(out, console=_console())
         _console().print(f"[bold green]report ->[/] {path}")
 

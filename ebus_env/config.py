@@ -362,9 +362,9 @@ def resolve_effect(item: str) -> Effect:
         found = {v.name: v for v in vars(module).values() if isinstance(v, Effect)}
         if name in found:
             return found[name]
-        raise unknown_name(f"effect in {file}", name,
-                           list(found) + [k for k, v in vars(module).items()
-                                          if isinstance(v, Effect)])
+        raise unknown_name(f"effect in {file}", name,  # by effect name or variable, once
+                           set(found) | {k for k, v in vars(module).items()
+                                         if isinstance(v, Effect)})
     if item.endswith(".py"):
         raise ConfigError(f"Name the effect in the file too: '{item}:EffectName'.")
     registered_effects()

@@ -104,6 +104,24 @@ def test_a_day_is_not_its_own_validation_or_reference(tmp_path):
     assert code == 2 and "--validate" in out and "is a log the fit is tuned on" in out
     code, out = invoke("diagnose", log, "--reference", copy)
     assert code == 2 and "is the log being diagnosed" in out and "another day" in out
+    # 40 min of a normal day: too few windows to say what it misses in each operating mode
+    pd.read_csv(log).iloc[:2400].to_csv(tmp_path / "short.csv", index=False)
+    code, out = invoke("diagnose", log, "--reference", tmp_path / "short.csv")
+    assert code == 2 and "The reference day has 7 usable window(s) of 300 s: too few" in out
+
+
+def test_a_log_given_twice_a_window_longer_than_the_log_and_the_demo_in_the_data(tmp_path):
+    log = ROOT / "data/measured/hidden/control.csv.gz"
+    copy = tmp_path / "copy.csv.gz"
+    copy.write_bytes(log.read_bytes())
+    code, out = invoke("diagnose", log, copy)
+    assert code == 2 and "is a log given already" in out and "count twice" in out
+    code, out = invoke("diagnose", log, "--window-s", 86400)
+    assert code == 2 and "a shorter window (--window-s" in out, out
+    code, out = invoke("demo", "--out", ROOT / "data/measured/hidden")
+    assert code == 2 and "holds the input" in out
+    code, out = invoke("cycles")
+    assert code == 0 and "vecto_urban_13m" in out and "nyc_composite" in out  # never cut
 
 
 def test_the_documented_paths_into_shipped_folders_work_from_any_folder(tmp_path, monkeypatch):

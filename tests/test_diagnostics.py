@@ -1066,3 +1066,26 @@ def test_on_a_bms_log_the_missing_power_is_the_charge_the_current_counts(bus12, 
     assert np.median(np.abs(missing[0])) < 5.0 and np.max(np.abs(missing[0])) < 1500.0
     assert np.median(missing[1]) == pytest.approx(3000.0, rel=0.05)
     np.testing.assert_allclose(missing[2], missing[1])
+
+
+def test_the_python_calls_name_what_they_were_given_instead_of_what_they_take():
+    from ebus_env.errors import ConfigError
+
+    bus = load_bus("12m")
+    log = load_log(hidden.OUT_DIR / "control.csv.gz")
+    cases = [
+        (lambda: diagnose(bus, []), "diagnose: no profiles"),
+        (lambda: diagnose(bus, log), "give the log's profiles (log.profiles), not the MeasuredLog"),
+        (lambda: diagnose(bus.build(), log.profiles), "give a bus config (load_bus('12m')), not a Model"),
+        (lambda: diagnose(bus, log.profiles, window_s=5), "window_s=...) = 5 is outside"),
+        (lambda: diagnose(bus, log.profiles, add=["replayed_load"]),
+         "replays the log's 'logged_load_kw' column, which the log does not have"),
+        (lambda: calibrate(bus.build(), log), "calibrate: give the log's profiles"),
+        (lambda: calibrate(bus.build(), log.profiles, free="aero_drag.drag_coef"),
+         "give a list of qualified names, ['aero_drag.drag_coef']"),
+        (lambda: load_log(pd.DataFrame({"time_s": [0, 1]})), "not from a DataFrame"),
+    ]
+    for call, words in cases:
+        with pytest.raises(ConfigError) as info:
+            call()
+        assert words in str(info.value), (words, str(info.value))

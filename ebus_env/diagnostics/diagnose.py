@@ -42,7 +42,9 @@ from ebus_env.diagnostics.ladder import (
 )
 from ebus_env.diagnostics.reference import Reference, measure_reference, mode_shares
 from ebus_env.diagnostics.voltage import explain_change, resistance_check
-from ebus_env.errors import LogError
+from ebus_env.errors import ConfigError, LogError
+from ebus_env.inputs import check as check_input
+from ebus_env.profile import as_profiles
 from ebus_env.units import with_unit
 
 WINDOW_S = 300.0
@@ -348,7 +350,9 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
             + (f"{residual.MIN_SAMPLES} SoC samples" if basis == residual.SOC_BASIS
                else "battery current") + " and free of data problems",
             path=", ".join(p.name for p in profiles),
-            fix="give a longer log (an hour or more: the diagnosis compares many windows)")
+            fix=(f"a shorter window (--window-s; the default is 300 s) for a log of {length}"
+                 if window_s > max(total_s - START_UP_S, 0.0) / 4 and total_s >= 3600.0 else
+                 "give a longer log (an hour or more: the diagnosis compares many windows)"))
     return Residual(model, dict(values), params, every, basis, window_s, windows, anchored,
                     energy, base_power, missing, residual.uncertainty_w(noise, base_power),
                     noise, usable, issues, excluded, normal)
@@ -867,8 +871,18 @@ def reference_stage(bus: BusConfig, profiles, window_s, settings, polish_starts,
     model = bus.build(dt_s)
     rung = calibrate_rung(bus, [], profiles, *split_blocks(profiles), dt_s, settings,
                           polish_starts, model=model, freedom=freedom)
-    return measure_reference(model, profiles, rung,
-                             residual_stage(model, profiles, rung.values, window_s))
+    res = residual_stage(model, profiles, rung.values, window_s)
+    if res.usable.sum() < attribution.MIN_WINDOWS:  # its per-mode gap would rest on a few
+        raise LogError(f"The reference day has {int(res.usable.sum())} usable window(s) of "
+                       f"{res.window_s:.0f} s: too few to say what the model misses on a normal "
+                       f"day (at least {attribution.MIN_WINDOWS})",
+                       path=", ".join(p.name for p in profiles),
+                       fix="give a longer normal day of the same bus (several hours)")
+    return measure_reference(model, profiles, rung, res)
+
+
+LOGGED_ONLY = {"logged_load_w": "logged_load_kw"}
+"""Input channels only a log gives (no default stands for them), and the log's column."""
 
 
 def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
@@ -889,9 +903,20 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     say = progress or (lambda text: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    profiles = list(profiles)
+    if not isinstance(bus, BusConfig):
+        raise ConfigError(f"diagnose: give a bus config (load_bus('12m')), not a "
+                          f"{type(bus).__name__}: the diagnosis builds its own models of it.")
+    profiles = as_profiles(profiles, "diagnose")
+    if window_s is not None:
+        check_input("window_s", window_s, "diagnose(window_s=...)")
     dt_s = profiles[0].dt_s
     add = [as_effect(a) for a in add]
+    for eff in add:  # an effect that replays a logged signal the log lacks would test nothing
+        for channel, column in LOGGED_ONLY.items():
+            if channel in eff.drivers and not all(channel in p.channels for p in profiles):
+                raise ConfigError(f"--add {eff.name} replays the log's '{column}' column, "
+                                  "which the log does not have. Fix: add the column (a load "
+                                  "measured on the bus), or add another effect.")
     check_known(bus, add, freedom, dt_s)
     held = dict((freedom or Freedom()).fixed)
     blocks = split_blocks(profiles)

@@ -108,12 +108,14 @@ def check_known(bus: BusConfig, add: list[Effect], freedom: Freedom | None,
     the effect's signatures on), inside its bounds: a clear error otherwise, before any
     calibration (:meth:`Freedom.on` leaves an added effect's values out until it is there).
     An effect to add that the bus has already is refused: its rung would test nothing."""
-    present = set(bus.effect_names())
+    present, added = set(bus.effect_names()), set()
     for eff in add:
+        if eff.name in added:
+            raise ConfigError(f"--add {eff.name} is given twice. Fix: give it once.")
         if eff.name in present:
             raise ConfigError(f"--add {eff.name}: the bus has it already. Fix: take it out of "
                               f"the bus (--without {eff.name}) to see what adding it does.")
-        present.add(eff.name)
+        added.add(eff.name)
     fixed = (freedom or Freedom()).fixed
     if fixed:
         for eff in add:
