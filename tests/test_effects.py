@@ -490,3 +490,19 @@ def test_an_effect_that_returns_what_its_sink_does_not_take_is_named(name, retur
     text = str(info.value)
     assert f"Effect '{name}' ({source}, line" in text and returned in text and expected in text
 
+
+
+def test_an_effect_that_returns_nan_or_inf_fails_the_run_and_names_its_term():
+    from pathlib import Path
+
+    from ebus_env.config import load_bus
+    from ebus_env.cycles import service_day
+    from ebus_env.errors import EbusError
+
+    bus = load_bus("12m").with_effect(
+        f"{Path(__file__).parent / 'user_effects' / 'wrong_returns.py'}:divides_by_zero")
+    model = bus.build()
+    with pytest.raises(EbusError) as info:
+        model.simulate(service_day("sort2", 0.1, model.dt_s, bus.service), soc_start=0.9)
+    assert "produced NaN or infinite values in: " in str(info.value)
+    assert "divides_by_zero" in str(info.value)

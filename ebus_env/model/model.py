@@ -452,9 +452,22 @@ class Model:
         acc = self.run(vec[None, :], states, inputs, record_every=record_every if record else 0,
                        record_out=record_out, python=python)
         wall = time.perf_counter() - t0
+        self._check_finite(acc[0], profile)
         trace = record_out[0] if record else None
         return SimulationResult(self, profile, vec, state, states[0], acc[0], trace,
                                 record_every, wall)
+
+    def _check_finite(self, acc: np.ndarray, profile: Profile) -> None:
+        """A run whose energies are NaN or infinite is no result: say where it went wrong
+        (an effect's power, named by its term, or the pack's)."""
+        bad = [name for name, value in zip(self.accumulator_names, acc, strict=True)
+               if not math.isfinite(value)]
+        if bad:
+            raise EbusError(
+                f"The run through '{profile.name}' produced NaN or infinite values in: "
+                f"{', '.join(bad)}. An effect returned NaN or inf for this run's inputs (a "
+                "division by zero, the square root or log of a negative number...). Fix: "
+                "guard that effect's arithmetic, or check its parameters.")
 
     def simulate_batch(self, profile: Profile, params, soc_start: float | None = None,
                        record: Sequence[str] = (), record_every: int = 10,

@@ -20,3 +20,8 @@ def text_value(power_w):
         states=[State("run_s", "s", "Time run", lambda p, x: 0.0)])
 def forgotten_state(run_s, power_w):
     return power_w
+
+
+@effect("divides_by_zero", sink="dc_load_w", params=POWER)
+def divides_by_zero(power_w, speed_mps):
+    return power_w / (speed_mps - speed_mps)
