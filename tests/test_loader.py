@@ -462,6 +462,13 @@ def test_day_first_dates_and_date_times_in_time_s_name_their_cause(tmp_path):
 
 
 # -- unreadable files -------------------------------------------------------------------------
+def test_a_spreadsheet_workbook_is_named_with_the_fix(tmp_path):
+    path = tmp_path / "day.xlsx"
+    path.write_bytes(b"PK\x03\x04 not a csv")
+    with pytest.raises(LogError, match=r"spreadsheet workbook \(\.xlsx\).*save the sheet as CSV"):
+        load_log(path)
+
+
 @pytest.mark.parametrize("damage", ["truncated", "not gzip", "bad checksum"])
 def test_a_damaged_gzip_log_is_named_as_such(tmp_path, damage):
     data = (ROOT / "data/measured/hidden/control.csv.gz").read_bytes()

@@ -67,6 +67,7 @@ CANONICAL = {
 FLAGS = ("charging", "door_open")
 GAP_POLICIES = ("error", "split", "hold", "interpolate")
 FILL_POLICIES = ("error", "interpolate")
+SPREADSHEETS = (".xlsx", ".xlsm", ".xls", ".ods", ".numbers")
 COMPRESSED = {".gz": "gzip", ".bz2": "bzip2", ".xz": "xz", ".zip": "zip", ".zst": "zstd"}
 SAME_QUANTITY = (("speed_kmh", "speed_mps", 3.6, "speed"), ("soc_pct", "soc_frac", 100.0, "SoC"),
                  ("grade_pct", "grade_frac", 100.0, "grade"))
@@ -124,6 +125,9 @@ def _read(path: Path) -> pd.DataFrame:
         raise LogError("The file does not exist", path=path, fix="check the path")
     if path.stat().st_size == 0:
         raise LogError("The file is empty", path=path, fix="give a log with a header and rows")
+    if path.suffix.lower() in SPREADSHEETS:
+        raise LogError(f"The file is a spreadsheet workbook ({path.suffix}), not a table the "
+                       "loader reads", path=path, fix="save the sheet as CSV (or Parquet)")
     header = []
     try:
         if path.suffix.lower() in (".parquet", ".pq"):
