@@ -289,6 +289,23 @@ def test_a_run_refuses_a_start_or_parameters_it_cannot_mean(model12, kwargs, wor
         == pytest.approx(95.0)
 
 
+def test_a_count_is_a_whole_number_and_no_search_fits_it(bus12, tmp_path):
+    from ebus_env.calibration import CalibrationProblem
+    from ebus_env.config import load_bus
+
+    model = bus12.build()
+    with pytest.raises(ConfigError, match="'rint_battery.cells_series' = 204.5 .* is a count"):
+        model.param_vector({"rint_battery.cells_series": 204.5})
+    overlay = tmp_path / "o.yaml"
+    overlay.write_text("params: {passenger_load: {max_passengers: 85.5}}\n")
+    with pytest.raises(ConfigError, match="'passenger_load.max_passengers' = 85.5 .* is a count"):
+        load_bus("12m", overlays=[overlay]).build()
+    day = constant_profile(10.0, 600.0)
+    day.measured["soc_frac"] = np.linspace(0.9, 0.89, day.n_steps)
+    with pytest.raises(ConfigError, match="'rint_battery.cells_parallel' is a count"):
+        CalibrationProblem(model, [day], free=["rint_battery.cells_parallel"])
+
+
 def test_user_effect_from_its_own_file_runs_in_the_compiled_core(bus12):
     bus = bus12.without_effect("cabin_hvac").with_effect(HEADWIND)
     model = bus.build()

@@ -255,6 +255,10 @@ class CalibrationProblem:
                               "in Python) that the model has and that are not fixed.")
         for name in free:
             model.param_index(name)  # unknown names fail with a close match
+            if model.param_info(name).whole:
+                raise ConfigError(f"'{name}' is a count (a whole number): a search cannot "
+                                  "fit it. Fix: give its value (--fix, --set) and leave it "
+                                  "out of the free parameters.")
         self.free = list(free)
         self.index = np.array([model.param_index(p) for p in self.free])
         self.low = model.bounds[self.index, 0].copy()

@@ -63,6 +63,8 @@ class Param:
         Meaning, with the symbol used in the effect's equation.
     source
         Where the default comes from.
+    whole
+        A count (cells, passengers): only whole numbers are values of it.
     """
 
     name: str
@@ -71,6 +73,7 @@ class Param:
     bounds: tuple[float, float]
     description: str
     source: str = ""
+    whole: bool = False
 
     def __post_init__(self):
         if not self.name.isidentifier():

@@ -55,8 +55,9 @@ RESISTANCE_SOC = Table(
 
 BATTERY_PARAMS = (
     Param("cells_series", 204.0, "1", (1.0, 400.0), "Cells in series N_s",
-          "200 kWh LFP at ~650 V: ~203 (docs/physics.md §5.1)"),
-    Param("cells_parallel", 3.0, "1", (1.0, 100.0), "Cells (strings) in parallel N_p"),
+          "200 kWh LFP at ~650 V: ~203 (docs/physics.md §5.1)", whole=True),
+    Param("cells_parallel", 3.0, "1", (1.0, 100.0), "Cells (strings) in parallel N_p",
+          whole=True),
     Param("cell_capacity_ah", 100.0, "Ah", (0.5, 1000.0), "Nominal cell capacity Q_cell"),
     Param("cell_resistance_mohm", 1.0, "mOhm", (0.05, 50.0),
           "Cell DC resistance at 25 degC, mid SoC, R_cell", "LFP 100-300 Ah prismatic 0.3-1.0 mOhm"),

@@ -29,7 +29,7 @@ def vehicle_body(curb_mass_kg, rotational_mass_factor, max_speed_kmh, max_brake_
           "Passenger load as a fraction of max_passengers (paper's categories: driver only 0, "
           "half load 0.5, full load 1)", "Hasan et al. 2023, tuned parameter"),
     Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max",
-          "12 m: 70-95 (Solaris Urbino 12: 94); 18 m: 120-150"),
+          "12 m: 70-95 (Solaris Urbino 12: 94); 18 m: 120-150", whole=True),
 ])
 def passenger_load(passenger_count, load_frac, max_passengers):
     """Passengers on board: the measured count where the profile gives one, else
@@ -63,7 +63,7 @@ COMMUTER_SHAPE = Table(
         tables=[COMMUTER_SHAPE], key_params=("peak_frac", "base_frac"), refines="passenger_load", params=[
     Param("base_frac", 0.2, "1", (0.0, 1.0), "Load between the peaks, fraction of n_max"),
     Param("peak_frac", 0.9, "1", (0.0, 1.0), "Load at the peaks, fraction of n_max"),
-    Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max"),
+    Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max", whole=True),
 ])
 def passenger_schedule(passenger_count, time_of_day_h, base_frac, peak_frac, max_passengers,
                        load_shape):

@@ -52,6 +52,8 @@ class Model:
                                dtype=float).reshape(-1, 2)
         self.params = np.array([values.get(n, self._declared[n].default) for n in self.param_names],
                                dtype=float)
+        self._counts = np.array([i for i, n in enumerate(self.param_names)
+                                 if self._declared[n].whole], dtype=int)  # Param.whole
         self._check_in_bounds(self.params, "the model's configured value")
         self._kernel = None
         self._lane_kernels = {}  # varying parameter columns -> module of the lane loops
@@ -137,6 +139,7 @@ class Model:
 
     # -- parameters -------------------------------------------------------------------------
     def _check_in_bounds(self, values: np.ndarray, what: str) -> None:
+        """Every value inside its bounds, and a count (``Param.whole``) a whole number."""
         low, high = self.bounds[:, 0], self.bounds[:, 1]
         bad = np.flatnonzero(~((values >= low) & (values <= high)))
         if bad.size:
@@ -145,6 +148,9 @@ class Model:
                 f"Parameter '{self.param_names[i]}' = {values[i]} ({what}) lies outside its "
                 f"bounds [{low[i]}, {high[i]}] {self._declared[self.param_names[i]].unit}."
             )
+        for i in self._counts[values[self._counts] != np.round(values[self._counts])]:
+            raise ConfigError(f"Parameter '{self.param_names[i]}' = {values[i]} ({what}) is a "
+                              "count: give a whole number.")
 
     def checked_vector(self, params: Mapping[str, float] | np.ndarray | None) -> np.ndarray:
         """A full parameter vector from overrides by name (:meth:`param_vector`) or a vector
