@@ -459,8 +459,9 @@ def calibrate(
                 from ebus_env.errors import ConfigError
 
                 raise ConfigError(f"--fleet calibrates each log of the folder with --bus, "
-                                  f"--columns, --params, --seed, --population and --iterations "
-                                  f"only; it does not take {', '.join(given)}. Fix: leave "
+                                  f"--columns, --params, --seed, --population, --iterations, "
+                                  f"--out, --ray and --address only; it does not take "
+                                  f"{', '.join(given)}. Fix: leave "
                                   f"{'it' if len(given) == 1 else 'them'} out, or calibrate "
                                   "the logs one by one.")
             fleet_command(fleet, bus, columns, params, seed, population, iterations, use_ray,

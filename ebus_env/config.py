@@ -291,8 +291,9 @@ def read_yaml(path: Path) -> dict:
 
 
 def find_config(name: str | Path, kind: str = "bus") -> Path:
-    """A config path: as given, or ``configs/<kind>/<name>.yaml`` in the working folder or
-    among the shipped configs."""
+    """A config path: as given (a relative ``configs/...`` path the working folder lacks: the
+    shipped file), or ``configs/<kind>/<name>.yaml`` in the working folder or among the
+    shipped configs."""
     path = paths.here_or_shipped(name)
     if path.suffix in (".yaml", ".yml"):
         if path.exists():
