@@ -99,6 +99,11 @@ def test_a_shipped_study_is_found_by_name_or_by_its_path_in_the_docs(tmp_path, m
         EXAMPLE)
     with pytest.raises(ConfigError, match="Unknown studies config 'exampel'. Did you mean"):
         load_study("exampel")
+    from ebus_env.envs.spec import EnvConfig
+    from ebus_env.study.calibration import fleet_logs
+
+    assert len(fleet_logs("data/measured/bmw_i3_tum")) == 8
+    assert EnvConfig.load("configs/env/gothenburg_may.yaml") == EnvConfig.load("gothenburg_may")
 
 
 # -- costs -------------------------------------------------------------------------------------

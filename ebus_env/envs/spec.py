@@ -160,7 +160,7 @@ def config_keys(cls, source: str | Path | dict | None, overrides: dict, kind: st
     if isinstance(source, dict):
         data = dict(source)
     elif source is not None:
-        path = Path(source)
+        path = paths.here_or_shipped(source)  # configs/env/x.yaml from any folder too
         if not path.suffix:
             path = folder / f"{source}.yaml"
         if not path.exists():

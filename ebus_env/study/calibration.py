@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ebus_env import paths
 from ebus_env.errors import ConfigError
 from ebus_env.outputs import atomic
 
@@ -30,7 +31,7 @@ PATTERNS = ("*.csv", "*.csv.gz", "*.parquet")
 
 def fleet_logs(logs_dir: str | Path) -> list[Path]:
     """The logs of a folder (CSV, gzipped CSV, Parquet), sorted by name."""
-    folder = Path(logs_dir)
+    folder = paths.here_or_shipped(logs_dir)
     if not folder.is_dir():
         raise ConfigError(f"--fleet {folder}: not a folder; give the folder of bus-day logs.")
     logs = sorted({p for pattern in PATTERNS for p in folder.glob(pattern)})
