@@ -360,6 +360,12 @@ def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hour
         console.print(f"[yellow]note:[/] the log has no SoC: the battery started at "
                       f"{summary['soc_start_pct']:.1f} %, the model's initial state; set it "
                       "with --soc-start-pct", highlight=False, soft_wrap=True)
+    if summary["soc_min_pct"] < 0.0:  # the loads drew on after traction stopped at empty
+        console.print(f"[yellow]warning:[/] the pack ran empty: its SoC fell to "
+                      f"{summary['soc_min_pct']:.1f} %, the auxiliaries and the cabin drawing on "
+                      "after the drive stopped; the figures past that point are not a bus's. "
+                      "Start fuller (--soc-start-pct) or charge more.", highlight=False,
+                      soft_wrap=True)
     summary["compile_or_load_s"] = compile_s
     title = f"{bus.name} on {run.label}"
     figures, breakdown = summary_tables(summary, title)

@@ -96,6 +96,13 @@ def test_a_fleet_calibration_refuses_the_options_it_does_not_take(tmp_path):
     assert not (tmp_path / "t.csv").exists() and "fleet calibration:" not in out
 
 
+def test_a_pack_run_empty_is_said():
+    code, out = invoke("simulate", "--cycle", "sort2", "--hours", "0.9", "--soc-start-pct", 1)
+    assert code == 0 and "warning: the pack ran empty: its SoC fell to -" in out
+    code, out = invoke("simulate", "--cycle", "sort2", "--hours", "0.2")
+    assert code == 0 and "ran empty" not in out
+
+
 def test_a_day_is_not_its_own_validation_or_reference(tmp_path):
     log = ROOT / "data/measured/hidden/control.csv.gz"
     copy = tmp_path / "copy.csv.gz"
