@@ -817,8 +817,7 @@ def demo(
         from ebus_env.outputs import check_folder
 
         # not into the folders of the logs it reads: a report is no shipped data
-        check_folder(out, "--out", inputs=[next(BMW_DIR.glob("*.csv")),
-                                           next(OUT_DIR.glob("*.csv.gz"))])
+        check_folder(out, "--out", inputs=[*BMW_DIR.glob("*.csv"), *OUT_DIR.glob("*.csv.gz")])
         path = run_demo(out, console=_console())
         _console().print(f"[bold green]report ->[/] {path}")
 

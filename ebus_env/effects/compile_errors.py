@@ -49,23 +49,27 @@ def explain(exc: BaseException, effects=()) -> CompositionError | None:
                 hit = next((first + i for i, line in enumerate(lines)
                             if re.search(rf"\b{name}\b", line) and i > 0), first)
             if hit is not None:
-                what = eff.name if site == "main" else f"{eff.name} ({site})"
-                return CompositionError(f"Effect '{what}' ({file}, line {hit}) cannot be "
-                                        f"compiled by numba: {cause}. {_FIX}")
+                return CompositionError(f"Effect '{_label(eff, site)}' ({file}, line {hit}) "
+                                        f"cannot be compiled by numba: {cause}. {_FIX}")
     for eff in effects:
         for site, call in eff.calls.items():
             wrong = _wrong_returns(call)
             if wrong is not None:
                 file, first, _ = _where(call.function)
-                what = eff.name if site == "main" else f"{eff.name} ({site})"
                 role = f"a contribution to {eff.sink}" if eff.sink else f"slot {eff.slot}"
                 return CompositionError(
-                    f"Effect '{what}' ({file}, line {first}) returns {wrong}; as {role} it must "
+                    f"Effect '{_label(eff, site)}' ({file}, line {first}) returns {wrong}; as "
+                    f"{role} it must "
                     f"return {len(call.returns)} number(s): "
                     f"{', '.join(r.replace('__contribution__', 'its contribution') for r in call.returns)}. "
                     "Fix: return exactly these, in this order (a state's next value for each "
                     "state it keeps, named in returns=).")
     return None
+
+
+def _label(eff, site: str) -> str:
+    """An effect's name, with its call site where it has several."""
+    return eff.name if site == "main" else f"{eff.name} ({site})"
 
 
 def _wrong_returns(call) -> str | None:
