@@ -30,7 +30,7 @@ test-all: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2 --durations=25   # the slowest, to keep the whole suite short
 
 bench: $(STAMP)
-	$(VENV)/bin/python benchmarks/bench_core.py
+	$(VENV)/bin/python -m benchmarks.bench_core
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ebus_env agents tests benchmarks examples

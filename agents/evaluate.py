@@ -305,6 +305,6 @@ def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SE
     names = [s.name for s in scores]
     if len(set(names)) != len(names):
         raise ValueError(f"Two policies have the same name: {names}.")
-    from ebus_env.envs.spec import EnvConfig
+    from ebus_env.envs.common import EnvConfig
 
     return ScoreSheet(str(config), seeds, scores, EnvConfig.load(config, **overrides).service_h)

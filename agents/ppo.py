@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ebus_env import paths
-from ebus_env.envs.spec import config_keys
+from ebus_env.envs.common import config_keys
 from ebus_env.errors import ConfigError
 
 DEFAULT_AGENT = paths.trained("ppo_sort2_day")
@@ -146,7 +146,7 @@ class PPOConfig:
     def env_config(self):
         """The env config this trains on (``env`` with ``env_overrides``): a clear error when
         either is wrong."""
-        from ebus_env.envs.spec import EnvConfig
+        from ebus_env.envs.common import EnvConfig
 
         return EnvConfig.load(self.env, **self.env_overrides)
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ebus_env.envs.batch import C_CHARGER, OBSERVATIONS
-from ebus_env.envs.spec import ACTION_LOW, ACTION_SPAN, ACTIONS
+from ebus_env.envs.common import ACTION_LOW, ACTION_SPAN, ACTIONS
 from ebus_env.errors import ConfigError
 
 OBS = {o[0]: i for i, o in enumerate(OBSERVATIONS)}

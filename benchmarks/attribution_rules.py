@@ -7,12 +7,12 @@ under settings of the attribution's rules (its module constants) and prints, for
 setting, the hidden library effects named right, the wrong verdicts and the control days
 with a verdict::
 
-    python benchmarks/attribution_rules.py                   # the shipped rules and VARIANTS
-    python benchmarks/attribution_rules.py --set CONFIDENCE=0.9 --set MIN_EXPLAINED=0.2
-    python benchmarks/attribution_rules.py --oracle          # each hidden effect's own power too
-    python benchmarks/attribution_rules.py --frontier        # the rules loosened step by step
-    python benchmarks/attribution_rules.py --per-effect 2 --controls 3   # the bench's first days
-    python benchmarks/attribution_rules.py --smoke           # CI: three 4 h days
+    python -m benchmarks.attribution_rules                   # the shipped rules and VARIANTS
+    python -m benchmarks.attribution_rules --set CONFIDENCE=0.9 --set MIN_EXPLAINED=0.2
+    python -m benchmarks.attribution_rules --oracle          # each hidden effect's own power too
+    python -m benchmarks.attribution_rules --frontier        # the rules loosened step by step
+    python -m benchmarks.attribution_rules --per-effect 2 --controls 3   # the bench's first days
+    python -m benchmarks.attribution_rules --smoke           # CI: three 4 h days
 
 The days are the truth bench's (``bench_diagnose.py --out-of-family``), diagnosed as there:
 calibrated, from the 12 m bus without ``BASELINE_WITHOUT``. A verdict whose strength the fit
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import pickle
-import sys
 import tempfile
 import time
 from collections import Counter
@@ -35,14 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.truth import bench
+from benchmarks.truth.bench import ORACLE, named_right, truth_cases, truth_day
+from ebus_env.diagnostics import attribution
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-import bench_diagnose as bench  # noqa: E402
-from bench_diagnose import ORACLE, named_right, truth_cases, truth_day  # noqa: E402
-
-from ebus_env.diagnostics import attribution  # noqa: E402
 
 CACHE = Path(tempfile.gettempdir()) / "ebus-attribution-rules"
 VARIANTS = (

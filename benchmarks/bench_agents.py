@@ -1,22 +1,18 @@
 """ECO rules and the shipped PPO agent on held-out days (issue 6): the README's tables,
 generated. Prints Markdown tables; no assertions.
 
-    python benchmarks/bench_agents.py            # 8 days per case, 20 for PPO vs the rules
-    python benchmarks/bench_agents.py --smoke    # CI: 2 short days
+    python -m benchmarks.bench_agents            # 8 days per case, 20 for PPO vs the rules
+    python -m benchmarks.bench_agents --smoke    # CI: 2 short days
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from agents.evaluate import FEATURES, evaluate  # noqa: E402
-from agents.ppo import load_policy  # noqa: E402
-from agents.rules import RULES, rule  # noqa: E402
+from agents.evaluate import FEATURES, evaluate
+from agents.ppo import load_policy
+from agents.rules import RULES, rule
 
 SHOWN = ("reward", "kwh_per_km", "battery_kwh", "grid_kwh", "peak_grid_kw", "hvac_kwh",
          "comfort_kh", "late_min")

@@ -1,7 +1,7 @@
 """Calibration speed and quality (issue 3). Prints tables; no assertions.
 
-    python benchmarks/bench_calibration.py            # full run (several minutes)
-    python benchmarks/bench_calibration.py --smoke    # CI: small sizes, same code paths
+    python -m benchmarks.bench_calibration            # full run (several minutes)
+    python -m benchmarks.bench_calibration --smoke    # CI: small sizes, same code paths
 
 Problems: a synthetic twin (the 12 m bus on a 13.5 h SORT 2 day with 12 charging layovers and a
 cold-to-mild ambient ramp, logged at 1 Hz with SoC quantised to 0.1 %; true parameters known),
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -20,14 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from ebus_env.calibration import CalibrationProblem, ISOPTSettings, calibrate, isopt
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.io.measured import load_log
+from ebus_env.synthetic import synthetic_log
 
-from ebus_env.calibration import CalibrationProblem, ISOPTSettings, calibrate, isopt  # noqa: E402
-from ebus_env.config import load_bus  # noqa: E402
-from ebus_env.cycles import service_day  # noqa: E402
-from ebus_env.io.measured import load_log  # noqa: E402
-from ebus_env.synthetic import synthetic_log  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 TRUTH = {"passenger_load.load_frac": 0.7, "cabin_hvac.setpoint_degc": 21.5,
          "static_rcd.rcd_frac": 0.12, "cccv_taper.cv_soc_pct": 90.0,

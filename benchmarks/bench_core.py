@@ -1,7 +1,7 @@
 """Speed and memory of the compiled core (issue 2 targets). Prints a table; no assertions.
 
-    python benchmarks/bench_core.py            # full run (about a minute)
-    python benchmarks/bench_core.py --smoke    # CI: small sizes, same code paths
+    python -m benchmarks.bench_core            # full run (about a minute)
+    python -m benchmarks.bench_core --smoke    # CI: small sizes, same code paths
 
 Figures are medians of repeated runs on this machine; ratios are taken within one run.
 The reference figure for FASTSim 3 (about 8 s for the same 486,000-step day, 17 us per step)
@@ -22,12 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.model.lanes import LANES_MIN
 
-from ebus_env.config import load_bus  # noqa: E402
-from ebus_env.cycles import service_day  # noqa: E402
-from ebus_env.model.lanes import LANES_MIN  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 FASTSIM_DAY_S = 8.0
 rows: list[tuple[str, str, str]] = []

@@ -2,8 +2,8 @@
 600 physics steps each, and PPO's training throughput on the native vector env. Prints a
 table; no assertions.
 
-    python benchmarks/bench_env.py            # full run
-    python benchmarks/bench_env.py --smoke    # CI: same code paths, few steps
+    python -m benchmarks.bench_env            # full run
+    python -m benchmarks.bench_env --smoke    # CI: same code paths, few steps
 """
 
 from __future__ import annotations
@@ -11,15 +11,11 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import gymnasium as gym
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-import ebus_env  # noqa: E402, F401
+import ebus_env  # noqa: F401
 
 
 def single_rate(env, steps: int, seed: int) -> float:

@@ -1,8 +1,8 @@
 """Speed of fleet studies: fleet-days per minute in-process, and Ray against in-process on the
 same scenarios, side by side in one run. Prints a table; no assertions.
 
-    python benchmarks/bench_study.py              # full run (a few minutes): 100 scenarios
-    python benchmarks/bench_study.py --smoke      # CI: 4 short scenarios, same code paths
+    python -m benchmarks.bench_study              # full run (a few minutes): 100 scenarios
+    python -m benchmarks.bench_study --smoke      # CI: 4 short scenarios, same code paths
 
 A fleet-day is the example study's line (six 12 m buses, a 13.5 h SORT 2 day, Gothenburg in
 January) with its terminal and depot chargers, one seeded day. Ray's overhead is its wall time
@@ -18,7 +18,6 @@ computing and its time blocked on the GIL.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import threading
 import time
@@ -27,13 +26,12 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from ebus_env.study import load_study, runner
+from ebus_env.study.backends import connect_ray, run_study
+from ebus_env.study.runner import Site, run_scenario
+from ebus_env.study.scenarios import scenarios
 
-from ebus_env.study import load_study, runner  # noqa: E402
-from ebus_env.study.backends import connect_ray, run_study  # noqa: E402
-from ebus_env.study.runner import Site, run_scenario  # noqa: E402
-from ebus_env.study.scenarios import scenarios  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 EXAMPLE = ROOT / "configs" / "studies" / "example.yaml"
 

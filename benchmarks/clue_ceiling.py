@@ -1,7 +1,7 @@
 """What an operating-mode clue can see of a load outside the library: its ceiling on the bench.
 
-    python benchmarks/clue_ceiling.py [--cache DIR] [--workers 2] [--per-effect N]
-    python benchmarks/clue_ceiling.py --current-voltage   # on BMS logs (the counted charge)
+    python -m benchmarks.clue_ceiling [--cache DIR] [--workers 2] [--per-effect N]
+    python -m benchmarks.clue_ceiling --current-voltage   # on BMS logs (the counted charge)
 
 On the truth simulator's days whose hidden load the library lacks (an air compressor, a
 battery chiller), the log carries the load's own power as well (the oracle column
@@ -28,14 +28,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from benchmarks import bench_diagnose as bench  # noqa: E402
+from benchmarks.truth import bench
 
 OUTSIDE = ("air_compressor", "battery_chiller")
 

@@ -1,7 +1,7 @@
 """The library's braking against the truth simulator's, with the truth's own bus.
 
-    python benchmarks/compare_braking.py [--cache DIR] [--days N] [--decel 0.8] [--one-efficiency]
-    python benchmarks/compare_braking.py --smoke   # CI: one control day, 4 h
+    python -m benchmarks.compare_braking [--cache DIR] [--days N] [--decel 0.8] [--one-efficiency]
+    python -m benchmarks.compare_braking --smoke   # CI: one control day, 4 h
 
 On control days (nothing hidden) of the truth bench: the battery energy of the truth
 simulator's run, by operating mode, against the library's diagnosis baseline driven through
@@ -20,21 +20,16 @@ its lowest speed, and a braking second at its highest. Prints a table; no assert
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.truth import cases as truth_cases
+from benchmarks.truth.bench import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
+from ebus_env.config import load_bus
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from benchmarks.bench_diagnose import BASELINE_WITHOUT, DAYS_CACHE, truth_day  # noqa: E402
-from benchmarks.truth import cases as truth_cases  # noqa: E402
-from ebus_env.config import load_bus  # noqa: E402
-
-CELLS_PARALLEL = 3.0  # the 12 m pack's strings: the truth's pack capacity is theirs together
-
 
 def library_values(base: dict, decel_mps2: float | None) -> dict:
     """The library's parameters for the truth's bus (its own names and units)."""

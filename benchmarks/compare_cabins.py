@@ -1,7 +1,7 @@
 """The library's cabin against the truth sources' cabins on the truth bench's HVAC days.
 
-    python benchmarks/compare_cabins.py [--cache DIR] [--source fastsim] [--cop]
-    python benchmarks/compare_cabins.py --smoke   # CI: the bench's 4 h smoke days
+    python -m benchmarks.compare_cabins [--cache DIR] [--source fastsim] [--cop]
+    python -m benchmarks.compare_cabins --smoke   # CI: the bench's 4 h smoke days
 
 Per HVAC day: the HVAC energy the truth logged, and the energy of the library's cabin
 (``cabin_hvac`` at its configured values, added to the diagnosis's baseline bus, driven
@@ -18,15 +18,11 @@ Prints a table; no assertions.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from benchmarks.bench_diagnose import (  # noqa: E402
+from benchmarks.truth.bench import (
     BASELINE_WITHOUT,
     DAYS_CACHE,
     SOURCES,
@@ -34,7 +30,9 @@ from benchmarks.bench_diagnose import (  # noqa: E402
     truth_day,
     truth_module,
 )
-from ebus_env.config import load_bus  # noqa: E402
+from ebus_env.config import load_bus
+
+ROOT = Path(__file__).resolve().parent.parent
 
 UA = "cabin_hvac.ua_w_per_k"
 HVAC_DAYS = ("cabin_heating", "cabin_cooling")

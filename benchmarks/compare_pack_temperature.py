@@ -1,8 +1,8 @@
 """The BMW i3's logged pack temperature against the model's unmanaged pack, with and without
 the pack's own ohmic heat.
 
-    python benchmarks/compare_pack_temperature.py [--reserved]
-    python benchmarks/compare_pack_temperature.py --smoke   # CI: trip B03 only
+    python -m benchmarks.compare_pack_temperature [--reserved]
+    python -m benchmarks.compare_pack_temperature --smoke   # CI: trip B03 only
 
 The TUM BMW i3 trips (``data/measured/bmw_i3_tum``) log the pack's temperature (1 K steps).
 The i3 (``configs/bus/bmw_i3.yaml``) with ``ambient_battery`` in its battery-temperature slot
@@ -17,17 +17,15 @@ value). Prints a table; no assertions.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from ebus_env.config import load_bus
+from ebus_env.io.measured import load_log
 
-from ebus_env.config import load_bus  # noqa: E402
-from ebus_env.io.measured import load_log  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 BMW = ROOT / "data" / "measured" / "bmw_i3_tum"
 TRIPS = ("B16", "B03", "B02", "A01", "A07")

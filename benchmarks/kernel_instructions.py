@@ -1,7 +1,7 @@
 """Machine instructions per bus-step inside the compiled kernel, counted exactly (not timed).
 
-    python benchmarks/kernel_instructions.py             # 12 m bus, SORT 2 day (about 1 min)
-    python benchmarks/kernel_instructions.py --bus 18m --hours 2
+    python -m benchmarks.kernel_instructions             # 12 m bus, SORT 2 day (about 1 min)
+    python -m benchmarks.kernel_instructions --bus 18m --hours 2
 
 Timings on a shared VM drift by 30 % within an hour; an instruction count does not. The script
 runs itself under valgrind's callgrind with ``--dump-instr=yes``, reads the cost of every
@@ -26,7 +26,6 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 CODE_BYTES = 60_000  # more than the kernel's machine code; only addresses counted matter
 

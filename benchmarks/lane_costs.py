@@ -1,7 +1,7 @@
 """What each statement of the SIMD lane loop costs (``run_lanes``, docs/performance.md).
 
-    python benchmarks/lane_costs.py              # every statement (about 15 min)
-    python benchmarks/lane_costs.py 10 25        # statements 10 and 25 only
+    python -m benchmarks.lane_costs              # every statement (about 15 min)
+    python -m benchmarks.lane_costs 10 25        # statements 10 and 25 only
 
 For statement i, the loop over the lanes that computes it is written twice in a copy of the
 generated kernel, and that copy is timed against the unchanged kernel (64 buses, a 1 h SORT 2
@@ -16,19 +16,17 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import sys
 import time
 from pathlib import Path
 
 import numba
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from ebus_env.config import load_bus
+from ebus_env.cycles import service_day
+from ebus_env.model import kernels, lanes
 
-from ebus_env.config import load_bus  # noqa: E402
-from ebus_env.cycles import service_day  # noqa: E402
-from ebus_env.model import kernels, lanes  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 N_BUS = 64
 VARYING = ("passenger_load.load_frac", "cabin_hvac.setpoint_degc", "static_rcd.rcd_frac",

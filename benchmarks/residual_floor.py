@@ -1,8 +1,8 @@
 """The control days' residual floor: how much of it the library's pack type and drivetrain
 form make.
 
-    python benchmarks/residual_floor.py [--days 12] [--fastsim-days 12] [--seed 0] [--cache DIR]
-    python benchmarks/residual_floor.py --smoke   # CI: one 4 h control day of each source
+    python -m benchmarks.residual_floor [--days 12] [--fastsim-days 12] [--seed 0] [--cache DIR]
+    python -m benchmarks.residual_floor --smoke   # CI: one 4 h control day of each source
 
 On the bench's control days (nothing hidden) the bus the diagnosis calibrates (rung 0: the
 paper's and the bus-to-bus parameters free, :func:`~ebus_env.diagnostics.ladder.calibrate_rung`)
@@ -30,19 +30,16 @@ shipped bus's. The calibration is a stochastic search: single days move by its s
 from __future__ import annotations
 
 import argparse
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from benchmarks.truth import vehicles
+from benchmarks.truth.bench import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
+from benchmarks.truth.bench import truth_cases as bench_cases
 
-from benchmarks.bench_diagnose import BASELINE_WITHOUT, DAYS_CACHE, truth_day  # noqa: E402
-from benchmarks.bench_diagnose import truth_cases as bench_cases  # noqa: E402
-from benchmarks.compare_braking import CELLS_PARALLEL  # noqa: E402
-from benchmarks.truth import vehicles  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 OCV = {"LFP": "lfp_a123", "NMC": "nmc_p42a"}
 """The library's cell of each chemistry: another cell than the truth simulator's (a Lithium

@@ -300,10 +300,10 @@ def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hour
               json_path):
     import numpy as np
 
+    from ebus_env.console import summary_tables, write_json
     from ebus_env.errors import ConfigError
     from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, TABLE_SUFFIXES
-    from ebus_env.report import summary_tables, write_json
     from ebus_env.simulate import run_profiles
 
     console = _console()
@@ -449,7 +449,7 @@ def calibrate(
 ):
     """Fit the model's uncertain parameters to measured SoC (iSOPT, offline or windowed)."""
     if fleet is not None:
-        from ebus_env.study.calibration import fleet_command
+        from ebus_env.study.fleet_calibration import fleet_command
 
         # what a fleet calibration does not take: refused, not ignored
         unused = {"LOGS": logs, "--with": with_, "--without": without, "--overlay": overlay,
@@ -518,9 +518,9 @@ def _calibrate(logs, choice: BusChoice, handling: LogHandling, *, params, fix, r
     from ebus_env.calibration import calibrate as run_calibration
     from ebus_env.calibration.problem import require_soc
     from ebus_env.calibration.settings import load_calibration_config
+    from ebus_env.console import calibration_tables, write_json
     from ebus_env.inputs import check
     from ebus_env.outputs import JSON_SUFFIXES, PLOT_SUFFIXES, YAML_SUFFIXES
-    from ebus_env.report import calibration_tables, write_json
 
     console = _console()
     for name, value in (("population", population), ("iterations", iterations)):

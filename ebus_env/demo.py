@@ -15,10 +15,10 @@ from pathlib import Path
 
 from ebus_env import paths
 from ebus_env.config import load_bus
+from ebus_env.console import FIGURES, breakdown_label, write_json
 from ebus_env.cycles import service_day
 from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
-from ebus_env.report import FIGURES, breakdown_label, write_json
 from ebus_env.simulate import run_profiles
 from ebus_env.units import shown_unit, with_unit
 

@@ -107,7 +107,7 @@ def study_day() -> dict:
     """The shipped example study: each strategy on the first infrastructure, day 0."""
     from ebus_env.study.runner import run_scenario
     from ebus_env.study.scenarios import scenarios
-    from ebus_env.study.spec import load_study
+    from ebus_env.study.study_file import load_study
 
     spec = load_study("example")
     out = {}

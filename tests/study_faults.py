@@ -14,8 +14,8 @@ import signal
 
 import numpy as np
 
-from ebus_env.envs.spec import ACTION_LOW, ACTION_SPAN, ACTIONS
-from ebus_env.study.spec import BASELINE
+from ebus_env.envs.common import ACTION_LOW, ACTION_SPAN, ACTIONS
+from ebus_env.study.study_file import BASELINE
 
 
 class Hold:

@@ -431,11 +431,11 @@ def test_the_agent_commands_plug_into_ebus_through_an_entry_point():
 
     import typer
 
-    from agents.cli import register
+    from agents.commands import register
 
     pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
     assert pyproject["project"]["entry-points"]["ebus_env.commands"] == {
-        "agents": "agents.cli:register"}
+        "agents": "agents.commands:register"}
     app = typer.Typer()
     register(app)
     assert {c.callback.__name__ for c in app.registered_commands} == {"train", "evaluate"}

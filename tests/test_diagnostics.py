@@ -905,7 +905,7 @@ def test_a_reference_days_gap_per_mode_is_taken_off_and_its_values_bound_the_sea
     uncertain by s C s^T. Bus-to-bus values are searched within 10 % of the reference's (the
     auxiliary base load within 1 kW), inside their bounds; a user's fixed value stays."""
     from ebus_env.diagnostics.ladder import Freedom
-    from ebus_env.diagnostics.reference import Reference
+    from ebus_env.diagnostics.normal_day import Reference
     from ebus_env.diagnostics.residual import MODES, decompose
 
     rng = np.random.default_rng(5)
@@ -951,7 +951,7 @@ def test_against_a_normal_day_the_bus_stays_that_days_bus_and_the_effect_is_name
 
     from ebus_env.cli import app
     from ebus_env.diagnostics.ladder import NUISANCE
-    from ebus_env.diagnostics.reference import REFERENCE_AUX_SPAN_W, REFERENCE_SPAN
+    from ebus_env.diagnostics.normal_day import REFERENCE_AUX_SPAN_W, REFERENCE_SPAN
 
     log, normal = (hidden.OUT_DIR / f"{name}.csv.gz" for name in ("cabin_heating", "control"))
     out = tmp_path / "report.json"

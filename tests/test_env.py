@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import ebus_env  # noqa: F401  (registers the environments)
-from ebus_env.envs import reference
+from ebus_env.envs import reference_vehicle as reference
+from ebus_env.envs.common import ACTION_NAMES, ACTIONS, CONFIG_DIR, checked_actions, physical
 from ebus_env.envs.course import course_from_cycle
-from ebus_env.envs.spec import ACTION_NAMES, ACTIONS, CONFIG_DIR, checked_actions, physical
 from ebus_env.errors import ConfigError, LogError
 from ebus_env.profile import Profile
 
@@ -307,7 +307,7 @@ def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
     """A climate and a month set the day's ambient from monthly normals (mean of the daily
     minimum and maximum, half their difference). January in Gothenburg costs more HVAC
     energy than May; in July in Barcelona the HVAC cools: a lower setpoint costs more."""
-    from ebus_env.envs.spec import EnvConfig
+    from ebus_env.envs.common import EnvConfig
 
     cfg = EnvConfig(climate="barcelona", month=7)
     assert (cfg.ambient_mean_degc, cfg.ambient_amplitude_k) == (26.0, 3.0)
@@ -339,7 +339,7 @@ def test_climate_normals_set_the_day_heat_in_winter_and_cool_in_summer():
     ({"climate": {"min_degc": [5] * 12, "max_degc": [0] * 12}, "month": 1}, "must not exceed"),
 ])
 def test_bad_climate_keys_raise_clear_errors(keys, words):
-    from ebus_env.envs.spec import EnvConfig
+    from ebus_env.envs.common import EnvConfig
 
     with pytest.raises(ConfigError, match=words):
         EnvConfig.load("sort2_day" if "ambient_mean_degc" not in keys else None,

@@ -19,7 +19,7 @@ LAYERS = (  # lowest first; a module may import its own layer and those below
      "ebus_env.simulate"),
     ("ebus_env.calibration",),
     ("ebus_env.diagnostics", "ebus_env.envs"),
-    ("ebus_env.report", "ebus_env.plotting", "ebus_env.demo"),
+    ("ebus_env.console", "ebus_env.plotting", "ebus_env.demo"),
     ("ebus_env.study",),
     ("ebus_env.cli",),
     ("agents",),
@@ -29,9 +29,9 @@ INNER = {  # layers inside a package, the same way
                         "ebus_env.model.results"),
                        ("ebus_env.model.generate",), ("ebus_env.model.lanes",),
                        ("ebus_env.model.kernels",), ("ebus_env.model.model",)),
-    "ebus_env.envs": (("ebus_env.envs.climate", "ebus_env.envs.reward", "ebus_env.envs.reference",
+    "ebus_env.envs": (("ebus_env.envs.climate", "ebus_env.envs.reward", "ebus_env.envs.reference_vehicle",
                        "ebus_env.envs.course", "ebus_env.envs.render"),
-                      ("ebus_env.envs.batch",), ("ebus_env.envs.spec",),
+                      ("ebus_env.envs.batch",), ("ebus_env.envs.common",),
                       ("ebus_env.envs.ebus", "ebus_env.envs.vector", "ebus_env.envs.fleet"),
                       ("ebus_env.envs.sb3",)),
 }
@@ -105,3 +105,12 @@ def test_ebus_env_never_imports_agents():
     up = [f"{path.relative_to(ROOT)}:{line}" for path in (ROOT / "ebus_env").rglob("*.py")
           for target, line in imports(path) if target.split(".")[0] == "agents"]
     assert up == []
+
+
+def test_no_two_modules_share_a_name():
+    """A module's name says where it belongs: no two in ebus_env/ and agents/ share one."""
+    seen: dict[str, list[str]] = {}
+    for module, path in modules():
+        if path.name != "__init__.py":
+            seen.setdefault(path.stem, []).append(module)
+    assert {name: where for name, where in seen.items() if len(where) > 1} == {}

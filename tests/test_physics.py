@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -243,8 +242,7 @@ def test_ohmic_heat_explains_the_i3_packs_warming_on_winter_trips(trip):
     temperature rises 2-3 K at 3-8 degC outside. The unmanaged pack with the heat capacity of
     the i3's 230 kg pack, warmed by its R I^2, follows it within 1.1 K RMSE and halves the
     error of a pack that only follows the ambient, which ends 3 K too cold."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from compare_pack_temperature import errors_k
+    from benchmarks.compare_pack_temperature import errors_k
 
     rmse_ambient_k, end_ambient_k = errors_k(trip, joule_heat=False)
     rmse_heat_k, end_heat_k = errors_k(trip, joule_heat=True)

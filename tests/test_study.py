@@ -16,7 +16,7 @@ from ebus_env.errors import ConfigError
 from ebus_env.study import load_study, read_results
 from ebus_env.study.backends import run_study
 from ebus_env.study.costs import CostModel
-from ebus_env.study.results import rows_dir
+from ebus_env.study.rows import rows_dir
 from ebus_env.study.runner import depot, forget_batches, run_scenario
 from ebus_env.study.scenarios import scenarios
 from ebus_env.study.summary import pareto_front, write_summary
@@ -99,8 +99,8 @@ def test_a_shipped_study_is_found_by_name_or_by_its_path_in_the_docs(tmp_path, m
         EXAMPLE)
     with pytest.raises(ConfigError, match="Unknown studies config 'exampel'. Did you mean"):
         load_study("exampel")
-    from ebus_env.envs.spec import EnvConfig
-    from ebus_env.study.calibration import fleet_logs
+    from ebus_env.envs.common import EnvConfig
+    from ebus_env.study.fleet_calibration import fleet_logs
 
     assert len(fleet_logs("data/measured/bmw_i3_tum")) == 8
     assert EnvConfig.load("configs/env/gothenburg_may.yaml") == EnvConfig.load("gothenburg_may")

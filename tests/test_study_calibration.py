@@ -10,7 +10,7 @@ import pytest
 
 from ebus_env import paths
 from ebus_env.errors import ConfigError
-from ebus_env.study.calibration import calibrate_fleet, flag_outliers, robust_z
+from ebus_env.study.fleet_calibration import calibrate_fleet, flag_outliers, robust_z
 
 BMW = paths.data("measured", "bmw_i3_tum")
 

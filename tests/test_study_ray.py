@@ -30,8 +30,7 @@ except ImportError:
     pytest.skip("ray not installed (pip install -e '.[scale]')", allow_module_level=True)
 TESTS = Path(__file__).parent
 RAY = str(Path(sys.executable).parent / "ray")
-sys.path.insert(0, str(TESTS))
-from test_study import small  # noqa: E402
+from tests.test_study import small  # noqa: E402
 
 
 def _free_port() -> int:

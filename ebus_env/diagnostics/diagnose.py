@@ -40,7 +40,7 @@ from ebus_env.diagnostics.ladder import (
     split_blocks,
     windows_in,
 )
-from ebus_env.diagnostics.reference import Reference, measure_reference, mode_shares
+from ebus_env.diagnostics.normal_day import Reference, measure_reference, mode_shares
 from ebus_env.diagnostics.voltage import explain_change, resistance_check
 from ebus_env.errors import ConfigError, LogError
 from ebus_env.inputs import check as check_input
@@ -866,7 +866,7 @@ def with_refit(found: Attributed, after_values: dict) -> Attributed:
 def reference_stage(bus: BusConfig, profiles, window_s, settings, polish_starts,
                     freedom) -> Reference:
     """The reference day calibrated as a suspect day is, and what its model misses (see
-    :mod:`ebus_env.diagnostics.reference`)."""
+    :mod:`ebus_env.diagnostics.normal_day`)."""
     dt_s = profiles[0].dt_s
     model = bus.build(dt_s)
     rung = calibrate_rung(bus, [], profiles, *split_blocks(profiles), dt_s, settings,
@@ -898,7 +898,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     added and re-calibrated in turn). ``freedom`` changes what the calibrations fit and holds
     known values (calibrated or not). ``reference``, the profiles of a normal day of the same
     bus (or the :class:`Reference` :func:`reference_stage` made of them), makes the diagnosis
-    relative to that day (:mod:`ebus_env.diagnostics.reference`; it implies ``calibrate``).
+    relative to that day (:mod:`ebus_env.diagnostics.normal_day`; it implies ``calibrate``).
     """
     say = progress or (lambda text: None)
     timings: dict[str, float] = {}

@@ -5,7 +5,7 @@
 A decision is three compiled passes over the buses:
 
 1. ``_before``: map the actions, set the day's ambient and passengers, drive the reference
-   vehicles (:mod:`ebus_env.envs.reference`) under the caps, writing the model's input rows;
+   vehicles (:mod:`ebus_env.envs.reference_vehicle`) under the caps, writing the model's input rows;
 2. the bus model's kernel (:mod:`ebus_env.model`): the physics at ``dt_s``, all buses in one
    call;
 3. ``_after``: energy, peak, comfort, delay and reserve of the decision, and the new
@@ -27,7 +27,7 @@ import numpy as np
 
 from ebus_env.config import load_bus
 from ebus_env.effects.vehicle import COMMUTER_SHAPE
-from ebus_env.envs import reference
+from ebus_env.envs import reference_vehicle as reference
 from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
 from ebus_env.errors import CompositionError, ConfigError
@@ -254,7 +254,7 @@ def course_of(cfg) -> Course:
 
 
 class BusBatch:
-    """``n`` buses of one env config (:class:`ebus_env.envs.spec.EnvConfig`), in arrays.
+    """``n`` buses of one env config (:class:`ebus_env.envs.common.EnvConfig`), in arrays.
 
     ``params`` (n, n_params), ``states`` (n, n_states): the model's; ``ref`` (n, 9): the
     reference vehicles; ``inputs`` (n, n_inputs, n_rows): the last decision's input rows;

@@ -3,7 +3,7 @@
 ECO-driving changes *how* the bus drives, not *where*: the stops stay where they are and a lap
 stays as long. So the environments describe a line by distance (a 1 m grid): the speed the
 reference driver drives at each metre, the grade, the stops with their dwell times, and the
-baseline time to reach each metre (the timetable). :mod:`ebus_env.envs.reference` drives it
+baseline time to reach each metre (the timetable). :mod:`ebus_env.envs.reference_vehicle` drives it
 under the agent's speed and acceleration caps.
 """
 

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from ebus_env.envs.batch import OBSERVATIONS, S_SOC, BusBatch
-from ebus_env.envs.spec import (
+from ebus_env.envs.common import (
     ACTION_NAMES,
     EnvConfig,
     bus_info,

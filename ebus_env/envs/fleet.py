@@ -12,9 +12,17 @@ import numba
 import numpy as np
 
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
-from ebus_env.envs.reference import ROW_NAMES
+from ebus_env.envs.common import (
+    ACTIONS,
+    EnvConfig,
+    bus_info,
+    checked_actions,
+    config_keys,
+    physical,
+    reward_of,
+)
+from ebus_env.envs.reference_vehicle import ROW_NAMES
 from ebus_env.envs.reward import TERMS
-from ebus_env.envs.spec import ACTIONS, EnvConfig, bus_info, checked_actions, config_keys, physical, reward_of
 from ebus_env.errors import ConfigError, EnvError
 
 SITE_OBSERVATIONS = (  # name, unit, low, high

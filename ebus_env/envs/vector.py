@@ -18,7 +18,7 @@ from gymnasium.vector.utils import batch_space
 
 from ebus_env.envs import MAX_DECISIONS
 from ebus_env.envs.batch import OBSERVATIONS, BusBatch
-from ebus_env.envs.spec import (
+from ebus_env.envs.common import (
     ACTION_NAMES,
     EnvConfig,
     batch_info,

@@ -5,8 +5,8 @@ Ray) and streams one Parquet file per finished scenario, ``write_summary`` write
 plots and the HTML report.
 """
 
-from ebus_env.study.results import read_results
-from ebus_env.study.spec import StudySpec, load_study
+from ebus_env.study.rows import read_results
+from ebus_env.study.study_file import StudySpec, load_study
 
 __all__ = ["StudySpec", "load_study", "read_results", "run_study", "write_summary"]
 

@@ -1,7 +1,7 @@
 """Where a study's scenarios run: in this process (the default) or as Ray tasks.
 
 Either way each scenario's rows are written as soon as it finishes
-(:func:`ebus_env.study.results.write_rows`), so a stopped study resumes where it stopped. On
+(:func:`ebus_env.study.rows.write_rows`), so a stopped study resumes where it stopped. On
 Ray each scenario is one task; a task whose worker dies is run again by Ray (``max_retries``),
 and since a scenario's rows depend only on the study file and its seeds, the retried rows equal
 those of an undisturbed run.
@@ -17,9 +17,9 @@ import yaml
 
 from ebus_env.errors import ConfigError
 from ebus_env.outputs import write_text
-from ebus_env.study.results import finished, read_results, rows_dir, write_rows
+from ebus_env.study.rows import finished, read_results, rows_dir, write_rows
 from ebus_env.study.scenarios import scenarios
-from ebus_env.study.spec import StudySpec
+from ebus_env.study.study_file import StudySpec
 
 MAX_RETRIES = 3  # runs of a task whose worker died, after the first
 

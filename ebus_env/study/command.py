@@ -14,7 +14,7 @@ def study_command(study_file: Path, out: Path, resume: bool, use_ray: bool, addr
     """Check the study, run what is left of it, write ``summary.csv`` and ``report.html``."""
     from ebus_env.outputs import check_folder
     from ebus_env.study.backends import run_study
-    from ebus_env.study.spec import load_study
+    from ebus_env.study.study_file import load_study
     from ebus_env.study.summary import COLUMNS, table_rows, write_summary
 
     spec = load_study(study_file)  # every check before any work

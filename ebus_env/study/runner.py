@@ -18,11 +18,11 @@ import numba
 import numpy as np
 
 from ebus_env.envs.batch import ELAPSED_ROWS, OUT, BusBatch
+from ebus_env.envs.common import ACTIONS, physical
 from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
-from ebus_env.envs.spec import ACTIONS, physical
 from ebus_env.errors import ConfigError
 from ebus_env.study.scenarios import Scenario
-from ebus_env.study.spec import StudySpec
+from ebus_env.study.study_file import StudySpec
 
 SPEED_CAP = [a.name for a in ACTIONS].index("speed_cap_kmh")
 DISTANCE_KM, EMPTY = OUT.index("distance_km"), OUT.index("empty")

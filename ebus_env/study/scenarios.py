@@ -6,7 +6,7 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass
 
-from ebus_env.study.spec import Infrastructure, Strategy, StudySpec
+from ebus_env.study.study_file import Infrastructure, Strategy, StudySpec
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from ebus_env.envs.climate import climate_of
-from ebus_env.envs.spec import ACTIONS, EnvConfig
+from ebus_env.envs.common import ACTIONS, EnvConfig
 from ebus_env.errors import ConfigError
 from ebus_env.inputs import check
 from ebus_env.study.checks import check_keys, is_number, positive
