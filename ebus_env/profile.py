@@ -8,6 +8,8 @@ of every change made to the data on the way (resampling, smoothing, filling).
 
 from __future__ import annotations
 
+import dataclasses
+import datetime
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +44,9 @@ class Profile:
     start_s
         The log's own time at the first row, from the log's first row [s]: a segment of a log
         split at its gaps starts where it does in the log.
+    date
+        The local date of the first row, where the log has date-times (None otherwise): the
+        day a run belongs to when several days of a bus are compared.
     notes
         Every change made to the data, in words.
     """
@@ -54,6 +59,7 @@ class Profile:
     notes: list[str] = field(default_factory=list)
     samples: dict[str, np.ndarray] = field(default_factory=dict)
     start_s: float = 0.0
+    date: datetime.date | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
@@ -134,24 +140,30 @@ class Profile:
         new = dict(self.channels)
         for name, value in channels.items():
             new[name] = np.broadcast_to(np.asarray(value, dtype=float), (self.n_steps,)).copy()
-        return Profile(new, self.dt_s, self.name, self.start_time_h, dict(self.measured),
-                       list(self.notes), dict(self.samples), self.start_s)
+        return self._copy(channels=new)
 
     def without_measured(self, *names: str) -> Profile:
         """A copy without the measured signals ``names`` (the model's inputs unchanged)."""
-        return Profile(dict(self.channels), self.dt_s, self.name, self.start_time_h,
-                       {k: v for k, v in self.measured.items() if k not in names},
-                       list(self.notes), {k: v for k, v in self.samples.items() if k not in names},
-                       self.start_s)
+        return self._copy(measured={k: v for k, v in self.measured.items() if k not in names},
+                          samples={k: v for k, v in self.samples.items() if k not in names})
 
     def slice(self, start: int, stop: int) -> Profile:
         """Rows ``start:stop`` as a profile of their own."""
         samples = {k: rows[(rows >= start) & (rows < stop)] - start
                    for k, rows in self.samples.items()}
-        return Profile({k: v[start:stop] for k, v in self.channels.items()}, self.dt_s,
-                       self.name, (self.start_time_h + start * self.dt_s / 3600.0) % 24.0,
-                       {k: v[start:stop] for k, v in self.measured.items()}, list(self.notes),
-                       samples, self.start_s + start * self.dt_s)
+        elapsed_h = self.start_time_h + start * self.dt_s / 3600.0
+        return self._copy(channels={k: v[start:stop] for k, v in self.channels.items()},
+                          start_time_h=elapsed_h % 24.0,
+                          measured={k: v[start:stop] for k, v in self.measured.items()},
+                          samples=samples, start_s=self.start_s + start * self.dt_s,
+                          date=None if self.date is None else
+                          self.date + datetime.timedelta(days=int(elapsed_h // 24.0)))
+
+    def _copy(self, **changes) -> Profile:
+        """A copy with ``changes``: containers copied, the derived-signal cache empty."""
+        keep = {"channels": dict(self.channels), "measured": dict(self.measured),
+                "notes": list(self.notes), "samples": dict(self.samples)}
+        return dataclasses.replace(self, **{**keep, **changes, "_cache": {}})
 
 
 def as_profiles(profiles, what: str = "profiles") -> list[Profile]:

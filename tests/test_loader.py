@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import warnings
 from pathlib import Path
 
@@ -520,3 +521,19 @@ def test_sparse_log_above_top_speed_warns_and_takes_soc_frac(tmp_path):
     fast = load_sparse_log(write(tmp_path, frame), DT, max_speed_kmh=80.0)
     assert any("3000 samples (300 s) above the vehicle's top speed 80 km/h (max 122.4 km/h)"
                in w for w in fast.report.warnings)
+
+
+def test_a_log_with_date_times_keeps_its_date_and_a_split_segment_its_own(tmp_path):
+    """Several days of one bus are told apart by their dates: a log with date-times gives its
+    profile the local date of its first row; a segment after midnight the next day's."""
+    t = pd.date_range("2026-01-26 23:50:00+01:00", periods=1200, freq="s")
+    keep = np.r_[0:500, 900:1200]  # a gap from 23:58:20 to 00:05:00
+    frame = pd.DataFrame({"timestamp": t[keep].strftime("%Y-%m-%dT%H:%M:%S%z"),
+                          "speed_kmh": 20.0, "soc_pct": 80.0})
+    path = tmp_path / "day.csv"
+    frame.to_csv(path, index=False)
+    first, second = load_log(path, gaps="split").profiles
+    assert first.date == datetime.date(2026, 1, 26) and second.date == datetime.date(2026, 1, 27)
+    assert second.slice(10, 20).date == second.date and first.with_channels(grade_frac=0.0).date
+    frame.drop(columns="timestamp").assign(time_s=np.arange(len(keep))).to_csv(path, index=False)
+    assert load_log(path).profile.date is None

@@ -40,6 +40,7 @@ smoothing, filling, splitting) is listed in :attr:`LoadReport.changes`.
 
 from __future__ import annotations
 
+import datetime
 import lzma
 import re
 import zipfile
@@ -252,16 +253,16 @@ def _nan_runs(values: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _time(frame: pd.DataFrame, path: Path, report: LoadReport,
-          given_start_h: float | None = None) -> tuple[np.ndarray, float]:
-    """Seconds from the first row, and the time of day of the first row [h]: the log's own
-    clock (date-times in 'timestamp'), else ``given_start_h``, else 00:00 (with a note).
-    'time_s' and 'timestamp' together are used only when they agree."""
+          given_start_h: float | None = None) -> tuple[np.ndarray, float, datetime.date | None]:
+    """Seconds from the first row, the time of day of the first row [h] and its date: the
+    log's own clock (date-times in 'timestamp'), else ``given_start_h``, else 00:00 (with a
+    note), and no date. 'time_s' and 'timestamp' together are used only when they agree."""
     if "time_s" not in frame.columns and "timestamp" not in frame.columns:
         raise LogError("No time column." + _close_column("time_s", frame.columns), path=path,
                        fix="name it 'time_s' (seconds) or 'timestamp', or map it with columns=")
-    column, start_h = "time_s", None
+    column, start_h, start_date = "time_s", None, None
     if "timestamp" in frame.columns:
-        t, start_h, step = _timestamps(frame["timestamp"], path, report)
+        t, start_h, step, start_date = _timestamps(frame["timestamp"], path, report)
         column = "timestamp"
     if "time_s" in frame.columns:
         seconds = _seconds(frame, path)
@@ -305,7 +306,7 @@ def _time(frame: pd.DataFrame, path: Path, report: LoadReport,
     if backwards.size:
         raise LogError("Time goes backwards", path=path, column=column, rows=backwards,
                        fix="sort the log by time, or split it into files at the jumps")
-    return t - t[0], start_h
+    return t - t[0], start_h, start_date
 
 
 def _hms(hours: float) -> str:
@@ -332,15 +333,16 @@ def _seconds(frame: pd.DataFrame, path: Path) -> np.ndarray:
 
 
 def _timestamps(column: pd.Series, path: Path, report: LoadReport) -> tuple[
-        np.ndarray, float | None, float]:
+        np.ndarray, float | None, float, datetime.date | None]:
     """Seconds from 'timestamp' (date-times or seconds), the first row's time of day [h]
-    (None for seconds) and the step the times are written to. Date-times with UTC offsets
+    (None for seconds), the step the times are written to and the first row's local date
+    (None for seconds). Date-times with UTC offsets
     count in UTC, so a daylight-saving switch is no jump; the clock starts at the first
     row's local time."""
     text = column.astype(str).str.strip()
     numeric = pd.to_numeric(text, errors="coerce")
     if numeric.notna().all():
-        return numeric.to_numpy(float), None, _rounding(column)
+        return numeric.to_numpy(float), None, _rounding(column), None
     offset = text.str.extract(r":\d\d(?:\.\d+)?\s*(Z|[+-]\d\d(?::?\d\d)?)$")[0]
     if offset.notna().any() and offset.isna().any():
         raise LogError("Some date-times have a UTC offset and some not", path=path,
@@ -378,7 +380,7 @@ def _timestamps(column: pd.Series, path: Path, report: LoadReport) -> tuple[
     within = (stamps - stamps.dt.floor("s")).dt.total_seconds().to_numpy()
     step = 1.0 if not within.any() else (
         1e-3 if np.allclose(within * 1e3, np.round(within * 1e3)) else 1e-6)
-    return t, start_h, step
+    return t, start_h, step, first.date()
 
 
 def _rounding(column: pd.Series) -> float:
@@ -603,7 +605,7 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     path, report, frame = open_log(path, columns)
     if start_h is not None:
         check("log_start_h", start_h)
-    t, start_h = _time(frame, path, report, start_h)
+    t, start_h, start_date = _time(frame, path, report, start_h)
 
     if "speed_kmh" not in frame.columns and "speed_mps" not in frame.columns:
         raise LogError("No speed column." + _close_column("speed_kmh", frame.columns), path=path,
@@ -651,7 +653,8 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     profiles = []
     for a, b in segments:
         profiles.append(_segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h,
-                                         gaps, limit, grade_window_m, report, path, name))
+                                         start_date, gaps, limit, grade_window_m, report, path,
+                                         name))
     if len(profiles) > 1:
         short = [i for i, p in enumerate(profiles) if p.n_steps < 2]
         if short:
@@ -663,8 +666,8 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     return MeasuredLog(profiles, report)
 
 
-def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps, limit,
-                     grade_window_m, report, path, name) -> Profile:
+def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, start_date, gaps,
+                     limit, grade_window_m, report, path, name) -> Profile:
     ts = t[a:b]
     g = grid(ts[0], ts[-1], dt_s)
     period = float(np.median(np.diff(ts))) if b - a > 1 else dt_s
@@ -726,8 +729,10 @@ def _segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h, gaps,
             measured[name_] = rs(data)
     label = name or Path(path).stem
     segment_start_h = (start_h + ts[0] / 3600.0) % 24.0
+    date = None if start_date is None else \
+        start_date + datetime.timedelta(days=int((start_h + ts[0] / 3600.0) // 24.0))
     return Profile(channels, dt_s, label, segment_start_h, measured, samples=samples,
-                   start_s=float(ts[0]))
+                   start_s=float(ts[0]), date=date)
 
 
 def _check_limits(profiles, max_speed_kmh, max_accel_mps2, report) -> None:

@@ -51,7 +51,7 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
     path, report, frame = open_log(path, columns)
     if start_h is not None:
         check("log_start_h", start_h)
-    t, start_h = _time(frame, path, report, start_h)
+    t, start_h, start_date = _time(frame, path, report, start_h)
     if "distance_km" not in frame.columns or not {"soc_pct", "soc_frac"} & set(frame.columns):
         raise LogError("A sparse log needs the columns 'distance_km' and 'soc_pct' (or "
                        "'soc_frac')", path=path,
@@ -112,7 +112,7 @@ def load_sparse_log(path: str | Path, dt_s: float = 0.1, cycle: str | Cycle = "s
         f"{kinds['charging']} charging; {kinds['split']} of the driven ones partly on the "
         "charger")
     profile = Profile(channels, dt_s, name or path.stem, start_h, measured,
-                      list(report.changes), samples={"soc_frac": rows})
+                      list(report.changes), samples={"soc_frac": rows}, date=start_date)
     _check_limits([profile], max_speed_kmh, None, report)
     return MeasuredLog([profile], report)
 
