@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.truth import bench
-from benchmarks.truth.bench import ORACLE, named_right, truth_cases, truth_day
+from benchmarks import out_of_family as bench
+from benchmarks.out_of_family import ORACLE, named_right, truth_cases, truth_day
 from ebus_env.diagnostics import attribution
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.truth.bench import DAYS_CACHE, SOURCES, line, out_of_family, report
+from benchmarks.out_of_family import DAYS_CACHE, SOURCES, line, out_of_family, report
 from ebus_env.config import load_bus
 from ebus_env.diagnostics import diagnose, hidden
 from ebus_env.diagnostics.ladder import improvement

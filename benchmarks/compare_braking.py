@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.truth import cases as truth_cases
-from benchmarks.truth.bench import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
+from benchmarks.out_of_family import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
 from ebus_env.config import load_bus
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.truth.bench import (
+from benchmarks.out_of_family import (
     BASELINE_WITHOUT,
     DAYS_CACHE,
     SOURCES,

@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.truth import vehicles
-from benchmarks.truth.bench import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
-from benchmarks.truth.bench import truth_cases as bench_cases
+from benchmarks.out_of_family import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
+from benchmarks.out_of_family import truth_cases as bench_cases
 
 ROOT = Path(__file__).resolve().parent.parent
 

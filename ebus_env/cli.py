@@ -360,11 +360,11 @@ def _simulate(choice: BusChoice, handling: LogHandling, *, cycle, measured, hour
         console.print(f"[yellow]note:[/] the log has no SoC: the battery started at "
                       f"{summary['soc_start_pct']:.1f} %, the model's initial state; set it "
                       "with --soc-start-pct", highlight=False, soft_wrap=True)
-    if summary["soc_min_pct"] < 0.0:  # the loads drew on after traction stopped at empty
-        console.print(f"[yellow]warning:[/] the pack ran empty: its SoC fell to "
-                      f"{summary['soc_min_pct']:.1f} %, the auxiliaries and the cabin drawing on "
-                      "after the drive stopped; the figures past that point are not a bus's. "
-                      "Start fuller (--soc-start-pct) or charge more.", highlight=False,
+    if "stranded_at_h" in summary:  # the BMS opened an empty pack away from a charger
+        console.print(f"[yellow]warning:[/] the pack ran empty {summary['stranded_at_h']:.2f} h "
+                      f"into the run, at {summary['stranded_at_km']:.2f} km: the BMS opened it "
+                      f"and the bus stood {summary['stranded_h']:.2f} h, its loads off. Start "
+                      "fuller (--soc-start-pct) or charge more.", highlight=False,
                       soft_wrap=True)
     summary["compile_or_load_s"] = compile_s
     title = f"{bus.name} on {run.label}"
@@ -731,7 +731,7 @@ def _diagnose(logs, choice: BusChoice, handling: LogHandling, *, calibrate, add,
         console.print(table)
     style = "bold green" if result.verdict else "bold"
     console.print(f"[{style}]{result.sentence}[/]", highlight=False)
-    for note in (result.pack_note, result.decide_note):
+    for note in (result.pack_note, result.unmet_note, result.decide_note):
         if note:
             console.print(note, highlight=False)
     if result.caution:

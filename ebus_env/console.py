@@ -50,6 +50,9 @@ FIGURES = [
     ("soc_max_abs_error_pct", "SoC max |error|", "%-pts", 2),
     ("soc_end_error_pct", "SoC error at the end", "%-pts", 2),
     ("battery_shortfall_kwh", "power the pack could not deliver", "kWh", 3),
+    ("battery_limited_s", "time the pack's limits held traction back", "s", 1),
+    ("stranded_at_h", "pack empty (stranded) after", "h", 2),
+    ("stranded_at_km", "... at the distance", "km", 2),
     ("wall_time_s", "simulation wall time", "s", 4),
     ("wall_time_no_trace_s", "simulation wall time, no trace recorded", "s", 4),
     ("build_s", "model build and compile (or load from the cache)", "s", 2),
@@ -106,6 +109,7 @@ FIT_ROWS = [
     ("correlation", "Pearson correlation", "1", 4),
     ("final_soc_error_pct", "final-SoC error", "%-pts SoC", 3),
     ("energy_error_pct", "energy error", "%", 2),
+    ("battery_limited_s", "the log's speed unmet: the pack's limits held traction back", "s", 1),
 ]
 CHARGE_ROWS = [  # a fit of the charge a log's current counts, beside the SoC (--charge)
     ("charge_nrmse", "NRMSE of the counted charge", "1", 4),

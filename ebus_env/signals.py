@@ -120,7 +120,7 @@ SLOTS: dict[str, Slot] = {
              default="rint_battery"),
         Slot("charge_limit", "Charging protocol: constant current and the CV taper factor",
              {"main": ("cc_current_a", "cv_taper")}, default="cccv_taper",
-             none={"cc_current_a": 1e12, "cv_taper": 1.0}),
+             none={"cc_current_a": math.inf, "cv_taper": 1.0}),  # inf: no limit
         Slot("driver", "Driver: wheel force demanded to track the reference speed",
              {"main": ("wheel_force_demand_n",)}, default="pi_driver"),
         Slot("drivetrain", "Motor limits and electric power of gearbox + motor + inverter",

@@ -9,7 +9,8 @@ import numpy as np
 from ebus_env.inputs import check
 
 _ADDITIVE = ("distance_km", "duration_h", "battery_energy_kwh", "consumed_energy_kwh",
-             "grid_energy_kwh", "charging_time_h", "wall_time_s", "battery_shortfall_kwh")
+             "grid_energy_kwh", "charging_time_h", "wall_time_s", "battery_shortfall_kwh",
+             "battery_limited_s", "stranded_h")
 
 
 @dataclass
@@ -54,6 +55,12 @@ def combine(summaries: list[dict], results: list) -> dict:
     out["soc_min_pct"] = min(s["soc_min_pct"] for s in summaries)
     out["peak_grid_kw"] = max(s["peak_grid_kw"] for s in summaries)
     out["max_behind_m"] = max(s["max_behind_m"] for s in summaries)
+    stranded = [i for i, s in enumerate(summaries) if "stranded_at_h" in s]
+    if stranded:  # where the first segment to strand did, in the log's time and distance
+        i = stranded[0]
+        out["stranded_at_h"] = summaries[i]["stranded_at_h"] + results[i].profile.start_s / 3600
+        out["stranded_at_km"] = summaries[i]["stranded_at_km"] + sum(
+            s["distance_km"] for s in summaries[:i])
     errors = [r.soc_error_samples() for r in results]
     errors = [e for e in errors if e is not None]
     if errors:

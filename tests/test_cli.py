@@ -98,7 +98,8 @@ def test_a_fleet_calibration_refuses_the_options_it_does_not_take(tmp_path):
 
 def test_a_pack_run_empty_is_said():
     code, out = invoke("simulate", "--cycle", "sort2", "--hours", "0.9", "--soc-start-pct", 1)
-    assert code == 0 and "warning: the pack ran empty: its SoC fell to -" in out
+    assert code == 0 and "warning: the pack ran empty 0." in out and "the BMS opened it" in out
+    assert "pack empty (stranded) after" in out
     code, out = invoke("simulate", "--cycle", "sort2", "--hours", "0.2")
     assert code == 0 and "ran empty" not in out
 

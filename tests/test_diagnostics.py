@@ -801,7 +801,9 @@ def test_calibration_on_blocks_scores_only_its_blocks():
 def test_what_a_user_knows_is_held_and_what_they_free_is_fitted():
     """A calibration config (or ``--set``) says what a user knows of the bus. A fixed pack
     capacity keeps its value through the calibration and the runs after it (held 30 % low,
-    the fit is six times worse than held at the truth); a parameter the user frees, the brake
+    the fit is half again worse than held at the truth: a higher pack resistance, which makes
+    the charger meet the cells' voltage ceiling sooner, takes up part of the difference); a
+    parameter the user frees, the brake
     blending limit, is fitted within the user's range in place of the paper's parameters,
     with the bus-to-bus ones; a range for a parameter not free fails by its name."""
     from ebus_env.calibration import ISOPTSettings
@@ -828,7 +830,7 @@ def test_what_a_user_knows_is_held_and_what_they_free_is_fitted():
         assert "cccv_taper.cv_soc_pct" not in free
         assert 1.0 <= rung.values["regen_cutoff.max_decel_mps2"] <= 5.0
         nrmse[value] = rung.calibration["nrmse"]
-    assert nrmse[0.7 * truth] > 5 * nrmse[truth]
+    assert nrmse[0.7 * truth] > 1.4 * nrmse[truth]
     with pytest.raises(ConfigError, match="static_rcd.rcd_frac"):
         calibrate_rung(bus, [], profiles, *blocks, profiles[0].dt_s, quick, 0, model=model,
                        freedom=Freedom(ranges={"static_rcd.rcd_frac": (0.0, 0.1)},

@@ -223,7 +223,7 @@ BATTERY = dict(cells_series=204.0, cells_parallel=3.0, cell_capacity_ah=100.0,
                cell_resistance_mohm=1.0, connection_factor=1.2,
                activation_energy_j_per_mol=25000.0, coulombic_efficiency=0.998,
                soc_min_frac=0.0, soc_max_frac=1.0, max_charge_c_rate=3.0,
-               max_discharge_c_rate=5.0)
+               max_discharge_c_rate=5.0, cell_voltage_min_v=2.0, cell_voltage_max_v=3.6)
 
 
 def battery_tables():
@@ -234,8 +234,10 @@ def battery_tables():
 PACK = {k: BATTERY[k] for k in ("cells_series", "cells_parallel", "cell_capacity_ah",
                                  "cell_resistance_mohm", "connection_factor",
                                  "activation_energy_j_per_mol")}
-LIMITS = {k: BATTERY[k] for k in ("cells_series", "coulombic_efficiency", "soc_min_frac",
-                                   "soc_max_frac", "max_charge_c_rate", "max_discharge_c_rate")}
+LIMITS = {k: BATTERY[k] for k in ("cells_series", "connection_factor", "coulombic_efficiency",
+                                   "soc_min_frac", "soc_max_frac", "max_charge_c_rate",
+                                   "max_discharge_c_rate", "cell_voltage_min_v",
+                                   "cell_voltage_max_v")}
 
 
 @pytest.mark.parametrize("fn", both("rint_battery", "pack"))
@@ -254,8 +256,9 @@ def test_battery_state(fn):
     ocv_table, r_table = battery_tables()
     r_pack = 1e-3 * 204 / 3 * 1.2
     def state(soc_frac, **limits):
-        return fn(soc_frac=soc_frac, capacity_ah=300.0, pack_resistance_ohm=r_pack, dt_s=0.1,
-                  **{**LIMITS, **limits}, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)
+        return fn(soc_frac=soc_frac, bms_open=0.0, charger_connected=0.0, capacity_ah=300.0,
+                  pack_resistance_ohm=r_pack, dt_s=0.1, **{**LIMITS, **limits},
+                  ocv_cell_v=ocv_table, resistance_soc_factor=r_table)
 
     ocv, r, charge_a, charge_w, discharge_w = state(0.5)
     assert ocv == pytest.approx(204 * 3.270)  # A123 OCV at 50 %
@@ -269,26 +272,69 @@ def test_battery_state(fn):
     assert state(0.05, soc_min_frac=0.1)[4] == 0.0
 
 
+@pytest.mark.parametrize("fn", both("rint_battery", "state"))
+def test_the_cell_voltage_window_caps_discharge_and_charge_current(fn):
+    """A cold pack (ten times the resistance) at 30 % SoC: the discharge current is the one
+    that puts a cell at V_min (its share of the resistance, without busbars, R / N_s k_conn);
+    the charge current the one that puts it at V_max; both far below the C-rates."""
+    ocv_table, r_table = battery_tables()
+    r_cold = 10 * 1e-3 * 204 / 3 * 1.2
+    closed = {"bms_open": 0.0, "charger_connected": 0.0}
+    ocv, r, charge_a, charge_w, discharge_w = fn(
+        soc_frac=0.3, capacity_ah=300.0, pack_resistance_ohm=r_cold, dt_s=0.1, **LIMITS,
+        **closed, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)
+    ocv_cell, per_cell_ohm = ocv / 204, r / (204 * 1.2)
+    discharge_a = (ocv_cell - 2.0) / per_cell_ohm
+    assert discharge_a < 1500 and discharge_w == pytest.approx(discharge_a * (ocv - r * discharge_a))
+    assert charge_a == pytest.approx((3.6 - ocv_cell) / per_cell_ohm) and charge_a < 900
+    # a looser window lets more through; V_max at or below the OCV lets no charge in
+    looser = {**LIMITS, "cell_voltage_min_v": 1.5}
+    assert fn(soc_frac=0.3, capacity_ah=300.0, pack_resistance_ohm=r_cold, dt_s=0.1, **looser,
+              **closed, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)[4] > discharge_w
+    full = {**LIMITS, "cell_voltage_max_v": 3.3}
+    assert fn(soc_frac=0.9, capacity_ah=300.0, pack_resistance_ohm=r_cold, dt_s=0.1, **full,
+              **closed, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)[2] == 0.0
+    # a pack the BMS holds open gives and takes nothing, until a charger connects
+    held = {"bms_open": 1.0, "charger_connected": 0.0}
+    assert fn(soc_frac=0.3, capacity_ah=300.0, pack_resistance_ohm=r_cold, dt_s=0.1, **LIMITS,
+              **held, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)[2:] == (0.0, 0.0, 0.0)
+    plugged = {"bms_open": 1.0, "charger_connected": 1.0}
+    assert fn(soc_frac=0.3, capacity_ah=300.0, pack_resistance_ohm=r_cold, dt_s=0.1, **LIMITS,
+              **plugged, ocv_cell_v=ocv_table, resistance_soc_factor=r_table)[2] == charge_a
+
+
 @pytest.mark.parametrize("fn", both("rint_battery", "update"))
 def test_battery_update_current_and_soc(fn):
     ocv, r, q = 660.0, 0.08, 300.0
-    current, voltage, soc_next, ohmic, coulombic, shortfall = fn(battery_power_w=100e3, soc_frac=0.5,
-                                                                 ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
-                                                                 dt_s=0.1, coulombic_efficiency=0.998)
+    cells = {"cells_series": 204.0, "connection_factor": 1.2, "bms_open": 0.0,
+             "charger_connected": 0.0, "soc_min_frac": 0.0}
+    current, voltage, soc_next, ohmic, coulombic, shortfall, cell_v, open_next = fn(
+        battery_power_w=100e3, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r, capacity_ah=q, dt_s=0.1,
+        coulombic_efficiency=0.998, **cells)
     assert current * voltage == pytest.approx(100e3)
+    # a cell's voltage: its share of the OCV less its share of the drop, busbars left out
+    assert cell_v == pytest.approx((ocv - r * current / 1.2) / 204) and cell_v > voltage / 204
+    assert open_next == 0.0
+    # the step that empties the pack off a charger opens it; a charger closes it again
+    emptied = {**cells, "soc_min_frac": 0.49999}
+    assert fn(battery_power_w=100e3, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
+              dt_s=0.1, coulombic_efficiency=0.998, **emptied)[-1] == 1.0
+    assert fn(battery_power_w=0.0, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
+              dt_s=0.1, coulombic_efficiency=0.998, **{**cells, "bms_open": 1.0,
+                                                     "charger_connected": 1.0})[-1] == 0.0
     assert voltage == pytest.approx(ocv - r * current)
     assert ohmic == pytest.approx(r * current**2)
     assert soc_next == pytest.approx(0.5 - current * 0.1 / (3600 * q))
     assert coulombic == 0.0 and shortfall == 0.0
     # charging: coulombic efficiency applies to the stored charge
-    current, _, soc_next, _, coulombic, _ = fn(battery_power_w=-100e3, soc_frac=0.5, ocv_v=ocv,
-                                               resistance_ohm=r, capacity_ah=q, dt_s=0.1,
-                                               coulombic_efficiency=0.998)
+    current, _, soc_next, _, coulombic, _, _, _ = fn(battery_power_w=-100e3, soc_frac=0.5, ocv_v=ocv,
+                                                  resistance_ohm=r, capacity_ah=q, dt_s=0.1,
+                                                  coulombic_efficiency=0.998, **cells)
     assert current < 0 and soc_next == pytest.approx(0.5 - 0.998 * current * 0.1 / (3600 * q))
     assert coulombic == pytest.approx(0.002 * ocv * -current)
     # beyond the pack's maximum power OCV^2 / 4R the shortfall is reported, not hidden
-    *_, shortfall = fn(battery_power_w=2e6, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r, capacity_ah=q,
-                       dt_s=0.1, coulombic_efficiency=0.998)
+    *_, shortfall, _, _ = fn(battery_power_w=2e6, soc_frac=0.5, ocv_v=ocv, resistance_ohm=r,
+                          capacity_ah=q, dt_s=0.1, coulombic_efficiency=0.998, **cells)
     assert shortfall == pytest.approx(2e6 - ocv**2 / (4 * r))
 
 
@@ -307,6 +353,16 @@ def test_grid_charger(fn):
     assert dc == pytest.approx(18e3)
     dc, _ = fn(**{**base, "cc_current_a": 100.0})
     assert dc == pytest.approx(100 * (ocv + r * 100) + 5000.0)
+    # two separate limits: a depot charger rated below what the pack accepts at high SoC
+    # (I_cc taper = 900 A x 0.56 at 90 %) delivers its rating; a fast one is held to it
+    taper = math.exp(-0.23 * 2.5)
+    dc, _ = fn(**{**base, "charger_rating_w": 18e3, "cv_taper": taper})
+    assert dc == pytest.approx(18e3)
+    dc, _ = fn(**{**base, "cv_taper": taper})
+    assert dc == pytest.approx(900 * taper * (ocv + r * 900 * taper) + 5000.0)
+    # the pack's own limit (C-rate, SoC ceiling, cell voltage window) caps it too
+    dc, _ = fn(**{**base, "charge_current_max_a": 50.0})
+    assert dc == pytest.approx(50 * (ocv + r * 50) + 5000.0)
     # pulsed: off in the second half of each period
     pulsed = {**base, "pulse_duty": 0.5}
     assert fn(**{**pulsed, "time_s": 2.0})[0] == pytest.approx(450e3)

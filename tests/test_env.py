@@ -249,13 +249,19 @@ def test_an_empty_battery_ends_the_day_and_charges_the_service_lost():
     env = gym.make("EBus-v0", soc_start_pct=12.0, charge_at_terminal=False).unwrapped
     env.reset(seed=0)
     floor = env.model.params[env.model.param_names.index("rint_battery.soc_min_frac")]
-    terminated, steps = False, 0
+    terminated, steps, km = False, 0, 0.0
     while not terminated:
         obs, reward, terminated, _, info = env.step(action())
         steps += 1
+        km += info["distance_km"]
     hours_left = env.config.service_h - steps * env.config.decision_s / 3600.0
     assert info["depleted"] and hours_left > 1.0
     assert obs[env.observation_names.index("soc")] <= floor + 1e-9
+    # the reason, with when and where
+    clock_h = env.config.start_time_h + steps * env.config.decision_s / 3600.0
+    assert info["ended_by"].startswith(f"battery empty at {int(clock_h):02d}:")
+    assert f", {km:.1f} km into the day: the BMS opened the pack at its SoC floor" in \
+        info["ended_by"]
     assert info["service_lost_h"] == pytest.approx(hours_left)
     weight = env.reward_fn.lost_service_per_hour
     assert info["reward_terms"]["lost_service"] == pytest.approx(weight * hours_left)

@@ -248,3 +248,91 @@ def test_ohmic_heat_explains_the_i3_packs_warming_on_winter_trips(trip):
     rmse_heat_k, end_heat_k = errors_k(trip, joule_heat=True)
     assert end_ambient_k < -2.5 and abs(end_heat_k) < 1.0
     assert rmse_heat_k < 1.1 and rmse_heat_k < 0.6 * rmse_ambient_k
+
+
+def test_a_cold_pack_is_held_at_its_cell_voltage_floor(bus12):
+    """An unmanaged 12 m pack at -30 degC and 30 % SoC up a 6 % grade: the BMS derates the
+    discharge so that no cell drops below V_min (2.0 V, the LFP cell's data sheet); the bus is
+    slower than one whose BMS allowed 1.5 V, and the trace and summary say where."""
+    model = bus12.with_effect("ambient_battery").build()
+    profile = constant_profile(25.0, 90.0, ambient_degc=-30.0, grade_frac=0.06)
+    values = {"ambient_battery.initial_offset_k": 0.0}
+    run = model.simulate(profile, model.param_vector(model.carry_over(values)), soc_start=0.3)
+    cell_v = run.trace("cell_voltage_v")
+    assert cell_v.min() == pytest.approx(2.0, abs=2e-3)  # at the floor, not below it
+    limited = run.trace("battery_limited") > 0.5
+    assert limited.sum() > 100 and run.summary()["battery_limited_s"] > 10.0
+    looser = model.param_vector(model.carry_over({**values, "rint_battery.cell_voltage_min_v": 1.5}))
+    free = model.simulate(profile, looser, soc_start=0.3)
+    assert free.trace("cell_voltage_v").min() < 1.9
+    assert free.summary()["distance_km"] > run.summary()["distance_km"] * 1.02
+    # what the pack can give and take, every step: its available power
+    available = run.trace("discharge_power_max_w")[limited]
+    used = (run.trace("motor_power_w") + run.trace("dc_load_w"))[limited] / available
+    assert np.median(used) == pytest.approx(1.0, abs=1e-3) and used.max() < 1.001
+
+
+def test_a_depot_charger_gives_its_rating_up_to_the_packs_acceptance(bus18):
+    """An 18 kW depot charger on the 18 m bus's pack, from 85 % SoC: the CV taper is the
+    pack's acceptance, I_cc taper (2.5 C x 184.5 Ah x taper); the charger delivers its full
+    rating until that falls below the current of 18 kW (above 99 % SoC), then what the pack
+    accepts. The charger and the pack are two limits, not one scaled by the other (which
+    would give 18 kW x 0.18 at 95 % SoC)."""
+    model = bus18.build()
+    profile = standing_profile(4 * 3600.0, charger_connected=1.0, charger_rating_w=18e3,
+                               ambient_degc=20.0)
+    run = model.simulate(profile, soc_start=0.85)
+    soc = run.trace("soc_frac")
+    dc_w = run.trace("charger_power_w")
+    accepts_a = np.minimum(run.trace("cc_current_a") * run.trace("cv_taper"),
+                           run.trace("charge_current_max_a"))  # CC/CV, C-rate, SoC, voltage
+    current_a = -run.trace("battery_current_a")
+    # every step: the charger at its rating, or the pack at what it accepts (never beyond)
+    at_rating = np.isclose(dc_w, 18e3, rtol=1e-4)
+    at_acceptance = np.isclose(current_a, accepts_a, rtol=1e-3, atol=1e-3)
+    assert np.all(at_rating | at_acceptance) and np.all(current_a <= accepts_a + 1e-3)
+    assert at_rating[(soc > 0.95) & (soc < 0.96)].all()  # above the CC/CV cutoff, still rated
+    assert (at_acceptance & ~at_rating).sum() > 100 and soc[~at_rating].min() > 0.99
+
+
+def test_an_empty_pack_strands_the_bus_and_its_loads_stop(bus12, sort2_hour):
+    """At soc_min_frac the BMS opens the pack: traction and the DC loads stop, the SoC stays
+    at the floor, and the summary gives when and where the bus stranded; the energy balance
+    still closes with the unserved loads counted out."""
+    model = bus12.build()
+    values = model.carry_over({"rint_battery.soc_min_frac": 0.1})
+    profile = sort2_hour.with_channels(charger_connected=0.0)
+    run = model.simulate(profile, model.param_vector(values), soc_start=0.16)
+    s = run.summary()
+    soc = run.trace("soc_frac")
+    assert soc.min() > 0.1 - 1e-4  # one step's draw below the floor at most
+    stranded = run.trace("stranded") > 0.5
+    first = np.flatnonzero(stranded)[0]
+    assert s["stranded_at_h"] == pytest.approx(first * DT / 3600.0, abs=DT / 3600.0)
+    assert s["stranded_at_km"] == pytest.approx(run.trace("distance_m")[first] / 1e3, abs=0.01)
+    # nothing charges it again: the loads stay off but while the bus rolls out on regen
+    regen = run.trace("motor_power_w") < 0.0
+    assert np.all(stranded[first:] | regen[first:]) and np.all(soc[first:] == soc[first])
+    assert run.trace("speed_mps")[-1] == 0.0 and s["stranded_h"] > 0.1
+    carried = run.trace("dc_load_w") - np.maximum(-run.trace("motor_power_w"), 0.0)
+    assert np.allclose(run.trace("unserved_load_w")[stranded], carried[stranded], rtol=1e-5)
+    b = s["breakdown_kwh"]
+    uses = sum(b[k] for k in ("inertia_net", "aero_drag", "rolling_resistance", "friction_brake",
+                              "drivetrain_loss", "auxiliaries", "cabin_hvac",
+                              "battery_ohmic_loss", "coulombic_loss")) - b["charging"]
+    assert s["battery_shortfall_kwh"] > 0.5
+    assert s["battery_energy_kwh"] == pytest.approx(uses - s["battery_shortfall_kwh"], rel=1e-3)
+
+
+def test_friction_brakes_never_propel_and_no_limit_is_written_as_missing(model12, sort2_hour):
+    """Friction brakes only hold back, also in the step where a bus comes to a stop; and
+    "no limit" (a charge limit off the charger) is inf inside the kernel, a missing value in
+    the written trace."""
+    run = model12.simulate(sort2_hour, soc_start=0.9)
+    assert run.trace("friction_brake_w").min() >= 0.0
+    frame = run.trace_frame()
+    off = frame["charger_connected"] < 0.5
+    assert frame.loc[off, "cc_current_a"].isna().all()
+    assert frame.loc[~off, "cc_current_a"].notna().all()
+    assert not np.isinf(frame.to_numpy(float)).any()
+    assert np.isinf(run.trace("cc_current_a")[off.to_numpy()]).all()  # inside: inf

@@ -322,3 +322,18 @@ def test_a_policy_that_holds_the_baseline_equals_the_fixed_baseline(monkeypatch)
     typo = load_study(small(**{"strategies": [{"name": "x", "policy": "study_faults:die_onse"}]}))
     with pytest.raises(ConfigError, match="policy 'study_faults:die_onse'"):
         run_scenario(typo, scenarios(typo)[0])
+
+
+def test_a_bus_that_runs_its_pack_empty_strands_and_the_study_counts_it():
+    """Three buses from 8 % SoC with no terminal charger: each empties its pack within the
+    2 h, the BMS opens it and the bus stands; the study counts the buses short and the service
+    hours they lose, and their lowest SoC is the pack's floor."""
+    spec = load_study(small(**{"lines.0.soc_start_pct": 8.0,
+                               "infrastructure.terminal_chargers": 0}))
+    (row,) = run_scenario(spec, scenarios(spec)[0], days=[0])
+    assert row["buses_short"] == 3
+    assert 0.3 < row["service_hours_lost"] < 3 * 2.0
+    assert row["lowest_soc_pct"] == pytest.approx(0.0, abs=0.01)
+    enough = load_study(small(**{"infrastructure.terminal_chargers": 0}))
+    (full,) = run_scenario(enough, scenarios(enough)[0], days=[0])
+    assert full["buses_short"] == 0 and full["service_hours_lost"] == 0.0

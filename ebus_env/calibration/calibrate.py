@@ -285,7 +285,7 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
     if blocks is not None:
         return _evaluate_blocks(model, profiles, params, blocks, charge)
     sims, meas, times = [], [], []
-    sim_energy = meas_energy = 0.0
+    sim_energy = meas_energy = limited_s = 0.0
     have_power = True
     offset = 0.0
     for p in profiles:
@@ -293,6 +293,7 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
         rows = p.sample_rows("soc_frac")
         rows = rows[np.isfinite(soc[rows])]
         result = model.simulate(p, params, soc_start=float(soc[rows[0]]))
+        limited_s += result.summary()["battery_limited_s"]
         sims.append(result.trace("soc_frac")[rows])
         meas.append(soc[rows])
         times.append((offset + rows * p.dt_s) / 3600.0)
@@ -306,6 +307,9 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
             have_power = False
     sim, mea = np.concatenate(sims), np.concatenate(meas)
     fit = soc_fit(sim, mea)
+    # the log's speed replayed: seconds in which the model's pack could not give the power
+    # the logged speed needs (its voltage floor, an empty pack), so the model fell behind
+    fit["battery_limited_s"] = limited_s
     if have_power and abs(meas_energy) > 0:
         fit["energy_error_pct"] = 100.0 * (sim_energy - meas_energy) / abs(meas_energy)
         fit["energy_error_basis"] = "energy drawn, from battery current x voltage"

@@ -130,6 +130,20 @@ class Diagnosis:
         return self.resistance["finding"] if self.resistance else ""
 
     @property
+    def unmet_demand_s(self) -> float:
+        """Seconds in which the calibrated model's pack could not give the power the logged
+        speed needs (its cell voltage floor, an empty pack): the model fell behind the log."""
+        return float(sum(run.summary()["battery_limited_s"] for run in self.runs))
+
+    @property
+    def unmet_note(self) -> str:
+        """The log's speed the model could not follow for want of battery power, or ""."""
+        unmet = self.unmet_demand_s
+        return (f"For {unmet:.0f} s the model's pack could not give the power the logged speed "
+                "needs (its cell voltage floor or an empty pack): the missing power there is "
+                "the model falling behind, not a missing effect." if unmet > 0.5 else "")
+
+    @property
     def decide_note(self) -> str:
         """What would decide the question the log leaves open (:mod:`.deciding`), or ""."""
         return f"What would decide it: {self.to_decide}" if self.to_decide else ""
@@ -154,6 +168,7 @@ class Diagnosis:
                 "timings")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
+        out["unmet_demand_s"] = self.unmet_demand_s
         return _plain(out)
 
     def write_json(self, path) -> None:

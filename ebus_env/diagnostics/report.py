@@ -114,7 +114,8 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
 
 def text_report(d) -> str:
     """Plain-text report."""
-    lines = [d.sentence, *[note for note in (d.pack_note, d.decide_note, d.caution) if note], ""]
+    notes = (d.pack_note, d.unmet_note, d.decide_note, d.caution)
+    lines = [d.sentence, *[note for note in notes if note], ""]
     for title, header, rows in tables(d):
         widths = [max(len(str(x)) for x in [h, *[r[i] for r in rows]])
                   for i, h in enumerate(header)]
@@ -171,6 +172,7 @@ def write_html(d, path: str | Path) -> None:
                      if d.range_ends else {}),
                   **({"the pack's resistance (logged voltage)": d.pack_note}
                      if d.pack_note else {}),
+                  **({"the logged speed unmet": d.unmet_note} if d.unmet_note else {}),
                   "run time": f"{d.timings.get('total_s', 0):.1f} s"},
         how_to_read="missing power is the battery power the measured SoC implies minus the "
                     "model's; the ranking gives the share of it each candidate effect explains "

@@ -8,7 +8,12 @@ Pack of N_s cells in series and N_p in parallel::
     R     = R_cell N_s / N_p k_conn f(SoC) exp(Ea/R_g (1/T - 1/T_ref)) (1 + k_R RCD)
     I     = 2 P / (OCV + sqrt(OCV^2 - 4 R P))                  current for terminal power P
     V_t   = OCV - R I
+    V_cell = OCV_cell - I R / (N_s k_conn)                     a cell's voltage (BMS reading)
     dSoC  = -eta I dt / (3600 Q),  eta = eta_c if I < 0 else 1
+
+The BMS keeps every cell within its voltage window [V_min, V_max] (docs/physics.md §5.7):
+
+    I_dis <= (OCV_cell - V_min) N_s k_conn / R,   I_chg <= (V_max - OCV_cell) N_s k_conn / R
 
 (docs/physics.md §5.1, §5.2, §5.3). The current formula is the usual quadratic root written
 so it stays exact as R -> 0. P > 0 and I > 0 discharge.
@@ -32,16 +37,20 @@ OCV_CELL = Table(
     presets={
         "lfp_a123": TableData(_OCV_SOC_PCT, (
             2.900, 2.976, 3.102, 3.172, 3.208, 3.237, 3.263, 3.270, 3.275, 3.280, 3.305, 3.315,
-            3.319, 3.433, 3.590), source="A123 LiFePO4, davidmcq137/JetiLuaDFM DFM-InsP/A123.lua"),
+            3.319, 3.433, 3.590), source="A123 LiFePO4, davidmcq137/JetiLuaDFM DFM-InsP/A123.lua",
+            param_defaults=(("cell_voltage_min_v", 2.0), ("cell_voltage_max_v", 3.6))),
         "lfp_lw_m1b": TableData(_OCV_SOC_PCT, (
             2.010, 2.908, 3.067, 3.199, 3.239, 3.278, 3.288, 3.299, 3.310, 3.321, 3.331, 3.342,
-            3.348, 3.350, 3.598), source="Lithium Werks APR18650M1B, soorajsunil/Piecewise-Battery-OCV"),
+            3.348, 3.350, 3.598), source="Lithium Werks APR18650M1B, soorajsunil/Piecewise-Battery-OCV",
+            param_defaults=(("cell_voltage_min_v", 2.0), ("cell_voltage_max_v", 3.6))),
         "nmc_p42a": TableData(_OCV_SOC_PCT, (
             2.506, 2.980, 3.163, 3.331, 3.475, 3.580, 3.657, 3.743, 3.839, 3.935, 4.031, 4.085,
-            4.101, 4.147, 4.193), source="Molicel INR21700-P42A, soorajsunil/Piecewise-Battery-OCV"),
+            4.101, 4.147, 4.193), source="Molicel INR21700-P42A, soorajsunil/Piecewise-Battery-OCV",
+            param_defaults=(("cell_voltage_min_v", 2.5), ("cell_voltage_max_v", 4.2))),
         "nmc_40t": TableData(_OCV_SOC_PCT, (
             2.500, 3.013, 3.177, 3.348, 3.487, 3.588, 3.658, 3.740, 3.836, 3.932, 4.029, 4.090,
-            4.110, 4.151, 4.200), source="Samsung INR21700-40T, soorajsunil/Piecewise-Battery-OCV"),
+            4.110, 4.151, 4.200), source="Samsung INR21700-40T, soorajsunil/Piecewise-Battery-OCV",
+            param_defaults=(("cell_voltage_min_v", 2.5), ("cell_voltage_max_v", 4.2))),
     },
     default="lfp_a123",
 )
@@ -68,11 +77,17 @@ BATTERY_PARAMS = (
     Param("coulombic_efficiency", 0.998, "1", (0.95, 1.0), "Coulombic efficiency on charge eta_c",
           "docs/physics.md §5.3"),
     Param("soc_min_frac", 0.0, "1", (0.0, 0.3),
-          "SoC at which the BMS cuts traction (auxiliaries still drain the pack)"),
+          "SoC at which the BMS opens the pack: traction and the DC loads stop (an empty pack)"),
     Param("soc_max_frac", 1.0, "1", (0.7, 1.0), "SoC the pack is never charged past"),
     Param("max_charge_c_rate", 3.0, "1/h", (0.1, 10.0),
           "Largest charge current (regen or charger) in C", "LFP up to 3C (paper)"),
     Param("max_discharge_c_rate", 5.0, "1/h", (0.1, 20.0), "Largest discharge current in C"),
+    Param("cell_voltage_min_v", 2.0, "V", (1.5, 3.5),
+          "Lowest cell voltage V_min the BMS allows: discharge is derated to stay above it",
+          "the OCV table's cell data sheet (docs/physics.md §5.7); A123 LFP 2.0 V"),
+    Param("cell_voltage_max_v", 3.6, "V", (3.3, 4.5),
+          "Highest cell voltage V_max the BMS allows: charge and regen are capped below it",
+          "the OCV table's cell data sheet (docs/physics.md §5.7); A123 LFP 3.6 V"),
 )
 
 
@@ -93,33 +108,47 @@ def battery_pack(capacity_factor, resistance_factor, battery_temp_degc, cells_se
     return capacity_ah, resistance_ohm
 
 
-def battery_state(soc_frac, capacity_ah, pack_resistance_ohm, dt_s, cells_series,
-                  coulombic_efficiency, soc_min_frac, soc_max_frac, max_charge_c_rate,
-                  max_discharge_c_rate, ocv_cell_v, resistance_soc_factor):
+def battery_state(soc_frac, bms_open, charger_connected, capacity_ah, pack_resistance_ohm, dt_s,
+                  cells_series, connection_factor, coulombic_efficiency, soc_min_frac,
+                  soc_max_frac, max_charge_c_rate, max_discharge_c_rate, cell_voltage_min_v,
+                  cell_voltage_max_v, ocv_cell_v, resistance_soc_factor):
     """OCV [V], resistance [Ohm] and the current/power limits of this step.
 
-    The charge limit also keeps the pack from passing ``soc_max_frac`` within the step; the
-    discharge limit is zero at or below ``soc_min_frac`` (the BMS cuts traction)."""
+    Charge current: the C-rate, no further than ``soc_max_frac`` within the step, and no cell
+    above V_max. Discharge current: the C-rate, no cell below V_min, and never beyond the
+    maximum-power current OCV / 2R; zero at or below ``soc_min_frac``. A cell sees the pack's
+    current through its share of the resistance without the busbars and contactors,
+    R / (N_s k_conn). While the BMS holds an emptied pack open, off a charger, nothing flows
+    (no regen either)."""
     soc_pct = 100.0 * soc_frac
-    ocv_v = cells_series * lookup1(ocv_cell_v, soc_pct)
+    ocv_cell = lookup1(ocv_cell_v, soc_pct)
+    ocv_v = cells_series * ocv_cell
     resistance_ohm = pack_resistance_ohm * lookup1(resistance_soc_factor, soc_pct)
+    amps_per_volt = cells_series * connection_factor / resistance_ohm  # cell voltage -> current
     headroom_a = max(soc_max_frac - soc_frac, 0.0) * (
         3600.0 * capacity_ah / (coulombic_efficiency * dt_s))
-    charge_a = min(max_charge_c_rate * capacity_ah, headroom_a)
+    charge_a = min(max_charge_c_rate * capacity_ah, headroom_a,
+                   max(cell_voltage_max_v - ocv_cell, 0.0) * amps_per_volt)
+    isolated = bms_open > 0.5 and charger_connected < 0.5
+    if isolated:
+        charge_a = 0.0
     charge_w = charge_a * (ocv_v + resistance_ohm * charge_a)
     discharge_w = 0.0
-    if soc_frac > soc_min_frac:
-        discharge_a = max_discharge_c_rate * capacity_ah
-        if 2.0 * resistance_ohm * discharge_a > ocv_v:  # beyond the maximum-power current
-            discharge_a = 0.5 * ocv_v / resistance_ohm
+    if soc_frac > soc_min_frac and not isolated:
+        discharge_a = min(max_discharge_c_rate * capacity_ah, 0.5 * ocv_v / resistance_ohm,
+                          max(ocv_cell - cell_voltage_min_v, 0.0) * amps_per_volt)
         discharge_w = discharge_a * (ocv_v - resistance_ohm * discharge_a)
     return ocv_v, resistance_ohm, charge_a, charge_w, discharge_w
 
 
-def battery_update(battery_power_w, soc_frac, ocv_v, resistance_ohm, capacity_ah, dt_s,
-                   coulombic_efficiency):
-    """Current [A], terminal voltage [V], next SoC, ohmic loss [W], coulombic loss [W] and the
-    power the pack could not deliver [W] (> 0 only beyond its maximum power OCV^2 / 4R)."""
+def battery_update(battery_power_w, soc_frac, bms_open, charger_connected, ocv_v,
+                   resistance_ohm, capacity_ah, dt_s, cells_series, connection_factor,
+                   coulombic_efficiency, soc_min_frac):
+    """Current [A], terminal voltage [V], next SoC, ohmic loss [W], coulombic loss [W], the
+    power the pack could not deliver [W] (> 0 only beyond its maximum power OCV^2 / 4R), a
+    cell's voltage as the BMS reads it [V] and whether the BMS holds the pack open next: from
+    the step that empties it (SoC at ``soc_min_frac``) off a charger, until a charger
+    connects."""
     disc = ocv_v * ocv_v - 4.0 * resistance_ohm * battery_power_w
     shortfall_w = 0.0
     if disc < 0.0:
@@ -135,7 +164,10 @@ def battery_update(battery_power_w, soc_frac, ocv_v, resistance_ohm, capacity_ah
         eta = 1.0
         coulombic_w = 0.0
     soc_next = soc_frac - eta * current_a * (dt_s / (3600.0 * capacity_ah))
-    return current_a, voltage_v, soc_next, ohmic_w, coulombic_w, shortfall_w
+    cell_v = (ocv_v - resistance_ohm * current_a / connection_factor) / cells_series
+    off_charger = charger_connected < 0.5
+    open_next = 1.0 if off_charger and (bms_open > 0.5 or soc_next <= soc_min_frac) else 0.0
+    return current_a, voltage_v, soc_next, ohmic_w, coulombic_w, shortfall_w, cell_v, open_next
 
 
 rint_battery = register(Effect(
@@ -147,11 +179,14 @@ rint_battery = register(Effect(
                                       "charge_power_max_w", "discharge_power_max_w")),
         "update": Call(battery_update, ("battery_current_a", "battery_voltage_v", "soc_frac_next",
                                         "battery_loss_w", "coulombic_loss_w",
-                                        "battery_shortfall_w")),
+                                        "battery_shortfall_w", "cell_voltage_v",
+                                        "bms_open_next")),
     },
     params=BATTERY_PARAMS,
     tables=(OCV_CELL, RESISTANCE_SOC),
-    states=(State("soc_frac", "1", "State of charge", lambda p, x: 0.9),),
+    states=(State("soc_frac", "1", "State of charge", lambda p, x: 0.9),
+            State("bms_open", "1", "1 while the BMS holds an emptied pack open (until a "
+                  "charger connects)", lambda p, x: 0.0)),
     drivers=("battery_current_a", "soc_frac"),
     doc=__doc__,
 ))

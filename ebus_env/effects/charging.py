@@ -23,7 +23,7 @@ def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
 
     The paper prints the exponent without its minus sign, which would make the current grow
     tenfold by 100 % SoC; the decaying form is continuous at the cutoff (docs/physics.md §5.4).
-    The charger applies the taper to its CC current, itself capped by the charger rating.
+    I_cc taper is what the pack accepts; a charger rated below it delivers its rating.
     """
     excess_pct = 100.0 * soc_frac - cv_soc_pct
     taper = 1.0
@@ -53,13 +53,15 @@ def grid_charger(charger_connected, charger_rating_w, cc_current_a, cv_taper,
 
     While connected, the charger feeds the bus loads and charges the pack with::
 
-        I    = min(I_cc, I_rated) taper             (CC/CV, docs/physics.md §5.4)
+        I    = min(I_rated, I_cc taper, I_chg,max)   (docs/physics.md §6.1)
         I_rated: the current with which the pack takes P_rated - P_loads
         I    <- I * (1 if pulse on else low_frac)   pulse on for the first d of each period
         P_dc = min(I (OCV + R I) + P_loads, P_rated),  P_grid = P_dc / eta_ch
 
-    The pack's own limits (C-rate, SoC ceiling) cap I as well. When the loads exceed the
-    rating, the pack supplies the difference.
+    Two separate limits: the charger's rating, and what the pack accepts, its CC/CV current
+    I_cc taper (docs/physics.md §5.4) and its own limits I_chg,max (C-rate, SoC ceiling, cell
+    voltage window). A depot charger rated below the pack's acceptance delivers its rating up
+    to high SoC. When the loads exceed the rating, the pack supplies the difference.
     """
     if charger_connected < 0.5:
         return 0.0, 0.0
@@ -71,8 +73,7 @@ def grid_charger(charger_connected, charger_rating_w, cc_current_a, cv_taper,
     current_a = 0.0
     if spare_w > 0.0:
         rated_a = 2.0 * spare_w / (ocv_v + math.sqrt(ocv_v * ocv_v + 4.0 * resistance_ohm * spare_w))
-        current_a = min(cc_current_a, rated_a) * cv_taper
-        current_a = min(current_a, charge_current_max_a)
+        current_a = min(rated_a, cc_current_a * cv_taper, charge_current_max_a)
         if pulse_duty < 1.0:
             phase_s = time_s - pulse_period_s * math.floor(time_s * (1.0 / pulse_period_s))
             if phase_s >= pulse_duty * pulse_period_s:

@@ -118,12 +118,17 @@ def encode2(name: str, x, y, z) -> np.ndarray:
 
 @dataclass(frozen=True)
 class TableData:
-    """Points of a table: ``y(x)`` (1-D) or ``z(x, y)`` (2-D)."""
+    """Points of a table: ``y(x)`` (1-D) or ``z(x, y)`` (2-D).
+
+    ``param_defaults``: ``(name, value)`` pairs of the effect's parameters that belong with
+    these points (a cell's voltage window with its OCV curve); a model built with this table
+    takes them as those parameters' defaults, unless the bus config sets them."""
 
     x: tuple
     y: tuple
     z: tuple | None = None
     source: str = ""
+    param_defaults: tuple = ()
 
     def encode(self, name: str) -> np.ndarray:
         if self.z is None:

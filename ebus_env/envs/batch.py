@@ -412,6 +412,24 @@ class BusBatch:
         return (self.out[:, _OUT["empty"]] > 0.0,
                 self.book[:, ELAPSED_ROWS] >= self.service_rows - 0.5)
 
+    def end_reason(self, b: int) -> str:
+        """Why bus ``b``'s service ended, in words ('' while it runs): an empty battery (the
+        BMS opened the pack at its SoC floor, or it could not carry the loads), with the time
+        of day and the distance of the day, or the end of service."""
+        empty, end = self.ended()
+        if not empty[b]:
+            return "end of service" if end[b] else ""
+        hour = (self.config.start_time_h + self.elapsed_h()[b]) % 24.0
+        km = self.states[b, self.at[S_DISTANCE]] / 1e3
+        soc_pct = 100.0 * self.states[b, self.at[S_SOC]]
+        floor_pct = 100.0 * self.const[C_SOC_MIN]
+        why = (f"the BMS opened the pack at its SoC floor ({floor_pct:.0f} %)"
+               if soc_pct <= floor_pct + 1e-6 else
+               f"the pack could not carry the loads at {soc_pct:.1f} % SoC (its cell voltage "
+               "floor)")
+        return (f"battery empty at {int(hour):02d}:{int(hour * 60) % 60:02d}, {km:.1f} km into "
+                f"the day: {why}")
+
     def column(self, name: str) -> np.ndarray:
         """A column of ``out`` by name."""
         return self.out[:, _OUT[name]]

@@ -212,17 +212,21 @@ def decision_info(out, scored, costs, kwh, values, energy_terms) -> dict:
 
 def bus_info(buses: BusBatch, b: int, values: np.ndarray, costs: np.ndarray) -> dict:
     """``info`` of bus ``b``'s last decision, in Python floats (``values``, ``costs``: its
-    actions in their units and reward terms)."""
-    return decision_info(buses.out[b].tolist(), buses.quantities[b, -len(SCORED):].tolist(),
+    actions in their units and reward terms), with why its service ended (``ended_by``)."""
+    info = decision_info(buses.out[b].tolist(), buses.quantities[b, -len(SCORED):].tolist(),
                          costs.tolist(), buses.breakdown_kwh(b).values(), values.tolist(),
                          buses.energy_terms)
+    info["ended_by"] = buses.end_reason(b)
+    return info
 
 
 def batch_info(buses: BusBatch, values: np.ndarray, costs: np.ndarray) -> dict:
     """``info`` of every bus's last decision, arrays (n,) (``values`` (n, 5), ``costs``
-    (n, terms))."""
-    return decision_info(buses.out.T.copy(), buses.quantities[:, -len(SCORED):].T.copy(),
+    (n, terms)); ``ended_by`` only where a bus's service ended."""
+    info = decision_info(buses.out.T.copy(), buses.quantities[:, -len(SCORED):].T.copy(),
                          costs.T, buses.breakdown_matrix_kwh().T, values.T, buses.energy_terms)
+    info["ended_by"] = np.array([buses.end_reason(b) for b in range(buses.n)], object)
+    return info
 
 
 IN_INFO = [(k, o) for k, o in enumerate(OBSERVATIONS) if o[0] in OUT]

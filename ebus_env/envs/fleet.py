@@ -260,6 +260,9 @@ class EBusFleetEnv(gym.Env):
                 "buses": [bus_info(line, b, values[lo + b], bus_costs[lo + b])
                           for line, lo in zip(self.lines, self._edges[:-1], strict=True)
                           for b in range(line.n)]}
+        info["ended_by"] = "; ".join(f"bus {i}: {bus['ended_by']}" for i, bus in
+                                     enumerate(info["buses"]) if bus["empty"]) if depleted \
+            else "end of service" if terminated else ""
         return self._observe(), float(reward[0]), terminated, False, info
 
     def render(self):

@@ -26,6 +26,7 @@ place:
 
 from __future__ import annotations
 
+import math
 import textwrap
 from dataclasses import dataclass, field
 
@@ -73,6 +74,14 @@ class Layout:
 def param_local(effect: str, name: str) -> str:
     """The local variable holding parameter ``name`` of ``effect`` in the generated loop."""
     return f"p__{effect}__{name}"
+
+
+def _literal(value: float) -> str:
+    """A float as generated source: ``math.inf`` for "no limit", else its repr."""
+    value = float(value)
+    if value in (math.inf, -math.inf):
+        return f"{'-' if value < 0 else ''}math.inf"
+    return repr(value)
 
 
 def _table_global(effect: str, name: str) -> str:
@@ -161,7 +170,7 @@ class _Writer:
             assert slot.none is not None, stage.slot
             names = slot.calls[stage.call]
             for name in names:
-                self.lines.append(f"{name} = {float(slot.none[name])!r}")
+                self.lines.append(f"{name} = {_literal(slot.none[name])}")
             self.provide(names, f"the empty slot '{stage.slot}'")
             return
         if stage.call not in eff.calls:  # an optional call site this effect has no use for
@@ -176,7 +185,7 @@ class _Writer:
         self.lines[start:] = ["    " + line for line in self.lines[start:]]
         self.lines.append("else:")
         for name in outputs:
-            self.lines.append(f"    {name} = {float(slot.none[name])!r}")
+            self.lines.append(f"    {name} = {_literal(slot.none[name])}")
 
     def sink(self, stage: template.SinkSum) -> None:
         sink = SINKS[stage.sink]
@@ -242,11 +251,16 @@ def generate(comp: Composition) -> Layout:
     sums += [(term, f"{term}_w") for term in layout.road_terms]
     sums += [("motor", "motor_power_w")]
     sums += [(term, f"{term}_w") for term in layout.load_terms]
+    # what the pack could not deliver: beyond its maximum power, and the loads of an empty pack
     sums += [("battery_ohmic_loss", "battery_loss_w"), ("coulombic_loss", "coulombic_loss_w"),
-             ("battery_shortfall", "battery_shortfall_w"), ("charger", "charger_power_w"),
-             ("grid", "grid_power_w")]
+             ("battery_shortfall", "battery_shortfall_w + unserved_load_w"),
+             ("charger", "charger_power_w"), ("grid", "grid_power_w"),
+             ("battery_limited", "battery_limited"), ("stranded", "stranded")]  # -> seconds
+    # the first stranded step: its time [s] and distance [m] (distance never decreases)
     extremes = [("peak_grid", "grid_power_w", "max"), ("soc_min", "soc_frac", "min"),
-                ("max_behind", "distance_behind_m", "max")]
+                ("max_behind", "distance_behind_m", "max"),
+                ("stranded_at", "time_s if stranded > 0.0 else math.inf", "min"),
+                ("stranded_at_m", "distance_m if stranded > 0.0 else math.inf", "min")]
     layout.accumulators = [(n, "sum") for n, _ in sums] + [(n, m) for n, _, m in extremes]
 
     layout.body, layout.sums, layout.extremes = w.lines, sums, extremes

@@ -466,8 +466,9 @@ class Model:
     def _check_finite(self, acc: np.ndarray, profile: Profile) -> None:
         """A run whose energies are NaN or infinite is no result: say where it went wrong
         (an effect's power, named by its term, or the pack's)."""
-        bad = [name for name, value in zip(self.accumulator_names, acc, strict=True)
-               if not math.isfinite(value)]
+        # extremes start at +-inf and stay there when nothing set them (never stranded)
+        bad = [name for (name, how), value in zip(self.layout.accumulators, acc, strict=True)
+               if math.isnan(value) or (how == "sum" and math.isinf(value))]
         if bad:
             raise EbusError(
                 f"The run through '{profile.name}' produced NaN or infinite values in: "
@@ -631,8 +632,11 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
         for table in eff.tables:
             value = (table_values.get(eff.name) or {}).get(table.name)
             try:
-                encoded[(eff.name, table.name)] = table.resolve(value).encode(table.name)
+                points = table.resolve(value)
+                encoded[(eff.name, table.name)] = points.encode(table.name)
             except ValueError as exc:
                 raise ConfigError(f"Effect '{eff.name}': {exc}") from exc
+            for pname, default in points.param_defaults:  # e.g. a cell's voltage window
+                values.setdefault(f"{eff.name}.{eff.param(pname).name}", float(default))
     comp = Composition(chosen, sinks, encoded)
     return Model(comp, values, box, dt_s, name)

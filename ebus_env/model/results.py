@@ -11,6 +11,7 @@ straight from a charger. kWh/km is consumed energy over distance.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,10 +77,17 @@ def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
         "charging_time_h": float(np.sum(profile.channel("charger_connected") > 0.5))
         * profile.dt_s / 3600.0,
         "max_behind_m": max(a["max_behind"], 0.0),
+        # seconds in which the pack's limits (its cell voltage floor, an empty pack) cut the
+        # traction the driver asked for, the bus falling behind (a flag summed times dt_s)
+        "battery_limited_s": a["battery_limited"],
         "breakdown_kwh": breakdown,
     }
     if a["battery_shortfall"] > 0:
         summary["battery_shortfall_kwh"] = kwh["battery_shortfall"]
+    if math.isfinite(a["stranded_at"]):  # the pack ran empty away from a charger
+        summary["stranded_at_h"] = a["stranded_at"] / 3600.0
+        summary["stranded_at_km"] = a["stranded_at_m"] / 1000.0
+        summary["stranded_h"] = a["stranded"] / 3600.0
     return summary
 
 
@@ -153,7 +161,9 @@ class SimulationResult:
 
         if self.trace_array is None:
             raise ValueError("This run kept no trace; simulate with record=True.")
-        frame = pd.DataFrame(self.trace_array, columns=self.model.trace_names)
+        # "no limit" is inf inside the kernel; a written trace gives it as a missing value
+        frame = pd.DataFrame(np.where(np.isinf(self.trace_array), np.nan, self.trace_array),
+                             columns=self.model.trace_names)
         frame.insert(0, "time_s", self.time_s)
         frame["soc_pct"] = 100.0 * frame["soc_frac"]
         frame["speed_kmh"] = 3.6 * frame["speed_mps"]

@@ -82,21 +82,33 @@ else:
     motor_force_n = max(wheel_force_n * regen_share, -regen_force_max_n)
 wheel_force_n, accel_mps2, speed_mps_next = _move(
     wheel_force_n, road_force_n, effective_mass_kg, speed_mps, dt_s)
-if wheel_force_n <= 0.0 and motor_force_n < wheel_force_n:
+# friction brakes only hold back: where the motor's share exceeds the wheel force (a bus that
+# stops within the step needs less braking), the motor takes the whole wheel force
+if motor_force_n < wheel_force_n:
     motor_force_n = wheel_force_n
 friction_brake_force_n = wheel_force_n - motor_force_n
 speed_mid_mps = 0.5 * (speed_mps + speed_mps_next)
 """
 
 _BATTERY_LIMITS = """
-# -- the pack cannot deliver the traction power (near-empty pack): cut traction to what it can
+# -- the pack cannot deliver the traction power (its cell voltage floor, a near-empty pack):
+# cut traction to what it can; the driver falls behind (battery_limited flags the step). The
+# motor's efficiency moves with the cut, so the cut is made once more (then within 0.01 %)
+battery_limited = 0.0
 if motor_power_w > 0.0 and motor_power_w + dc_load_w > discharge_power_max_w:
+    battery_limited = 1.0
     motor_force_n *= max(discharge_power_max_w - dc_load_w, 0.0) / motor_power_w
     wheel_force_n, accel_mps2, speed_mps_next = _move(
         motor_force_n, road_force_n, effective_mass_kg, speed_mps, dt_s)
-    friction_brake_force_n = wheel_force_n - motor_force_n
     speed_mid_mps = 0.5 * (speed_mps + speed_mps_next)
     {drivetrain.power}
+    if motor_power_w > 0.0 and motor_power_w + dc_load_w > discharge_power_max_w:
+        motor_force_n *= max(discharge_power_max_w - dc_load_w, 0.0) / motor_power_w
+        wheel_force_n, accel_mps2, speed_mps_next = _move(
+            motor_force_n, road_force_n, effective_mass_kg, speed_mps, dt_s)
+        speed_mid_mps = 0.5 * (speed_mps + speed_mps_next)
+        {drivetrain.power}
+    friction_brake_force_n = wheel_force_n - motor_force_n
 # -- the pack cannot accept all the regen power: the friction brakes take the rest
 regen_power_max_w = charge_power_max_w + dc_load_w
 if motor_power_w < 0.0 and -motor_power_w > regen_power_max_w:
@@ -108,7 +120,13 @@ motor_wheel_power_w = motor_force_n * speed_mid_mps
 """
 
 _BOOKKEEPING = """
-battery_power_w = motor_power_w + dc_load_w - charger_power_w
+# -- an empty pack (at soc_min_frac the BMS opens it): the DC loads stop too. The loads that
+# the charger, the regen and the pack cannot carry are unserved (traction was cut above);
+# with no power left in the pack the bus is stranded
+unserved_load_w = max(dc_load_w - charger_power_w - max(-motor_power_w, 0.0)
+                      - max(discharge_power_max_w, 0.0), 0.0)
+stranded = 1.0 if unserved_load_w > 0.0 and discharge_power_max_w <= 0.0 else 0.0
+battery_power_w = motor_power_w + dc_load_w - unserved_load_w - charger_power_w
 """
 
 _AFTER_BATTERY = """
@@ -142,9 +160,10 @@ STAGES = (
     Code(_ALLOCATE, ("wheel_force_n", "brake_floor_n", "motor_force_n", "accel_mps2",
                      "speed_mps_next", "friction_brake_force_n", "speed_mid_mps")),
     Site("drivetrain", "power"),
-    Code(_BATTERY_LIMITS, ("regen_power_max_w", "scale", "motor_wheel_power_w")),
+    Code(_BATTERY_LIMITS, ("battery_limited", "regen_power_max_w", "scale",
+                           "motor_wheel_power_w")),
     Site("charger"),
-    Code(_BOOKKEEPING, ("battery_power_w",)),
+    Code(_BOOKKEEPING, ("battery_power_w", "unserved_load_w", "stranded")),
     Site("battery", "update"),
     Site("battery_thermal", "heat"),  # the pack's temperature after this step's losses
     Code(_AFTER_BATTERY, ("distance_m_next", "distance_ref_m_next", "distance_behind_m",

@@ -21,7 +21,7 @@ from ebus_env.diagnostics import diagnose
 from ebus_env.diagnostics.ladder import Freedom, improvement
 from ebus_env.io.measured import load_log
 
-BENCHMARKS = Path(__file__).resolve().parent.parent
+BENCHMARKS = Path(__file__).resolve().parent
 USER_FILE = BENCHMARKS / "user_effects.py"
 USER_EFFECTS = {"battery_chiller": f"{USER_FILE}:pack_chiller",
                 "air_compressor": f"{USER_FILE}:air_compressor"}
