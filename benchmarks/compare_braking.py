@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.truth import cases as truth_cases
 from benchmarks.out_of_family import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
+from benchmarks.truth import cases as truth_cases
 from ebus_env.config import load_bus
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.truth import vehicles
 from benchmarks.out_of_family import BASELINE_WITHOUT, CELLS_PARALLEL, DAYS_CACHE, truth_day
 from benchmarks.out_of_family import truth_cases as bench_cases
+from benchmarks.truth import vehicles
 
 ROOT = Path(__file__).resolve().parent.parent
 
