@@ -16,7 +16,7 @@ STAMP  := $(VENV)/.installed
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e ".[rl,dev,scale,bench]"
+	$(PIP) -e ".[rl,dev,scale,bench,can]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -26,7 +26,9 @@ column                 required  meaning
 
 Files named otherwise are mapped with ``columns`` (``{"Velocity [km/h]": "speed_kmh"}`` or
 ``{"I [A]": {"column": "battery_current_a", "scale": -1}}``) or a preset in ``configs/logs``.
-Other numeric columns are kept, resampled, as measured signals.
+Other numeric columns are kept, resampled, as measured signals. A CAN logger file (``.mf4``,
+``.blf``, ``.asc``) is decoded through a signal map (a DBC and which signal feeds which column,
+:mod:`ebus_env.io.can_log`) into the same table, which then passes the same checks.
 
 Two columns of one quantity (``time_s`` and ``timestamp``, ``speed_kmh`` and ``speed_mps``,
 ``soc_pct`` and ``soc_frac``, ``grade_pct`` and ``grade_frac``) are used only when they agree
@@ -56,6 +58,9 @@ from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, LogError, did_you_mean, format_rows
 from ebus_env.grade import DEFAULT_WINDOW_M, grade_from_altitude
 from ebus_env.inputs import MAX_STEPS, RANGES, check
+from ebus_env.io.can_frames import SUFFIXES as CAN_SUFFIXES
+from ebus_env.io.can_frames import is_can_file
+from ebus_env.io.can_map import is_signal_map
 from ebus_env.profile import Profile
 from ebus_env.resample import grid, resample
 
@@ -86,6 +91,8 @@ class LoadReport:
     changes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     ignored: list[str] = field(default_factory=list)
+    frames: dict = field(default_factory=dict)  # a CAN logger file's frames by what became of
+    # them, by signal (ebus_env.io.can_log.Counts.to_json); empty for a table
 
 
 @dataclass
@@ -106,9 +113,19 @@ class MeasuredLog:
 def column_preset(name: str | Path) -> dict:
     """Column map from a preset in ``configs/logs`` (by name or path)."""
     data = read_yaml(find_config(name, kind="logs"))
+    if is_signal_map(data):
+        raise ConfigError(f"The preset {name} is a CAN signal map (dbc:, signals:) for logger "
+                          f"files ({', '.join(CAN_SUFFIXES)}), not a column map for a table. "
+                          "Fix: give a preset with columns: (or none) for a CSV or Parquet log.")
     if "columns" not in data:
         raise ConfigError(f"Column preset {name} needs a 'columns' mapping.")
     return dict(data["columns"])
+
+
+def _column_presets() -> list[str]:
+    """The shipped presets that map a table's columns (not the CAN signal maps)."""
+    return [name for name in paths.config_names("logs")
+            if not is_signal_map(read_yaml(paths.configs("logs") / f"{name}.yaml"))]
 
 
 COLUMN_RANGES = {
@@ -121,11 +138,23 @@ COLUMN_RANGES = {
 """The canonical columns checked against a declared range (``ebus_env.inputs.RANGES``)."""
 
 
-def _read(path: Path) -> pd.DataFrame:
+def _exists(path: Path) -> None:
     if not path.exists():
         raise LogError("The file does not exist", path=path, fix="check the path")
     if path.stat().st_size == 0:
         raise LogError("The file is empty", path=path, fix="give a log with a header and rows")
+
+
+def _read(path: Path, columns=None, report: LoadReport | None = None) -> pd.DataFrame:
+    """The file as a table: CSV or Parquet as written; a CAN logger file (``.mf4``, ``.blf``,
+    ``.asc``) decoded through the signal map ``columns`` (:mod:`ebus_env.io.can_log`), its
+    counts added to ``report``."""
+    _exists(path)
+    if is_can_file(path):
+        from ebus_env.io.can_log import read_can_log
+
+        return read_can_log(path, columns, report if report is not None else LoadReport(
+            str(path)))
     if path.suffix.lower() in SPREADSHEETS:
         raise LogError(f"The file is a spreadsheet workbook ({path.suffix}), not a table the "
                        "loader reads", path=path, fix="save the sheet as CSV (or Parquet)")
@@ -172,8 +201,9 @@ def _refuse_repeated(names: list[str], path: Path) -> None:
 
 def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
         Path, LoadReport, pd.DataFrame]:
-    """Read a log file and map its columns (a mapping or a preset's name); returns the path,
-    the report of what was done and the table with canonical column names."""
+    """Read a log file and map its columns (a mapping or a preset's name; for a CAN logger
+    file, a signal map); returns the path, the report of what was done and the table with
+    canonical column names."""
     if not isinstance(path, (str, Path)):
         table = isinstance(path, pd.DataFrame)
         raise ConfigError(f"A log is read from its file (CSV or Parquet), not from a "
@@ -182,9 +212,12 @@ def open_log(path: str | Path, columns: dict | str | Path | None) -> tuple[
                               if table else "") + ".")
     path = paths.here_or_shipped(path)
     report = LoadReport(str(path))
-    if isinstance(columns, (str, Path)):
-        columns = column_preset(columns)
-    frame = _apply_columns(_read(path), columns, path, report)
+    if is_can_file(path):  # decoded to canonical names by its signal map
+        frame = _read(path, columns, report)
+    else:
+        if isinstance(columns, (str, Path)):
+            columns = column_preset(columns)
+        frame = _apply_columns(_read(path), columns, path, report)
     report.rows = len(frame)
     if len(frame) < 2:
         raise LogError("The log needs at least two rows", path=path)
@@ -429,7 +462,7 @@ def _unknown_columns(values: dict, mapped: bool, report: LoadReport) -> None:
                           + ", ".join(f"'{c}'" for c in unknown))
     if mapped:
         return
-    for preset in paths.config_names("logs"):
+    for preset in _column_presets():
         matched = [c for c in column_preset(preset) if c in unknown]
         if matched:
             report.warnings.append(
@@ -575,11 +608,15 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
     Parameters
     ----------
     path
-        CSV (comma or semicolon separated) or Parquet file.
+        CSV (comma or semicolon separated) or Parquet file, or a CAN logger file (``.mf4``,
+        ``.blf``, ``.asc``) decoded through the signal map ``columns``
+        (:mod:`ebus_env.io.can_log`; needs the ``can`` extra).
     dt_s
         Simulation time step [s]; 0.5-20 Hz logs are up- or down-sampled to it.
     columns
-        Column map ``{source: canonical}`` or the name/path of a preset in ``configs/logs``.
+        Column map ``{source: canonical}`` or the name/path of a preset in ``configs/logs``;
+        for a CAN logger file a signal map (a preset with ``dbc:`` and ``signals:``, e.g.
+        ``ebus_j1939``, or such a mapping; :mod:`ebus_env.io.can_map`).
     gaps
         What to do with time gaps longer than ``max_gap_s``: ``error`` (default), ``split``
         (separate segments, each simulated from its own measured SoC), ``hold`` (hold the last
