@@ -52,16 +52,19 @@ def encode_log(table: pd.DataFrame, smap: SignalMap | dict | str | Path, *, seed
     t_row, first = _times(table)
     period = float(np.median(np.diff(t_row))) if len(t_row) > 1 else smap.period_s
     rng = np.random.default_rng(seed)
+    rel = t_row - t_row[0]
     parts = []
     present = [e for e in smap.entries if e.column in table.columns]
     messages = list(dict.fromkeys(e.message for e in present))
     for k, name in enumerate(messages):
         message = smap.message(name)
         cycle = (message.cycle_time or 1000) / 1000.0
-        t = np.arange(t_row[0], t_row[-1] + period, cycle) + 0.005 + k * PHASE_S
-        t = t + rng.uniform(0.0, jitter_s, len(t))
-        row = np.clip(np.searchsorted(t_row, t, "right") - 1, 0, len(t_row) - 1)
-        inside = t < t_row[row] + period  # no frame in a gap of the log
+        # times from the first row (an arange over epoch seconds would drift: its step is
+        # rounded at the magnitude of its start)
+        n = int(np.floor((rel[-1] + period) / cycle + 1e-9))
+        t = np.arange(n) * cycle + 0.005 + k * PHASE_S + rng.uniform(0.0, jitter_s, n)
+        row = np.clip(np.searchsorted(rel, t, "right") - 1, 0, len(rel) - 1)
+        inside = t < rel[row] + period  # no frame in a gap of the log
         t, row = t[inside], row[inside]
         raw = {}
         for e in (e for e in present if e.message == name):
@@ -86,9 +89,8 @@ def encode_log(table: pd.DataFrame, smap: SignalMap | dict | str | Path, *, seed
     order = np.argsort(t, kind="stable")
     width = max(p[4].shape[1] for p in parts)
     data = np.concatenate([np.pad(p[4], ((0, 0), (0, width - p[4].shape[1]))) for p in parts])
-    t0 = t_row[0]
     start = first  # the logger's clock: the first row's date-time, with its offset
-    return Frames(t[order] - t0, *(np.concatenate([p[i] for p in parts])[order]
+    return Frames(t[order], *(np.concatenate([p[i] for p in parts])[order]
                                    for i in (1, 2, 3)), data[order], start)
 
 
