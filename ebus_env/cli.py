@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 
+from ebus_env.depot.depot_command import register as _register_depot
 from ebus_env.errors import EbusError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -860,6 +861,7 @@ def _add_installed_commands() -> None:
 
 
 _add_installed_commands()
+_register_depot(app, _run)
 
 
 def main():  # pragma: no cover
