@@ -7,7 +7,6 @@ import datetime
 import sys
 
 import numpy as np
-import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -278,4 +277,3 @@ def test_ebus_simulate_reads_a_logger_file_and_prints_what_was_decoded(tmp_path)
     assert result.exit_code == 0, result.output
     assert "decoded" in result.output and "CCVS1.WheelBasedVehicleSpeed" in result.output
     assert "0x18FECA00" in result.output
-    pd.testing  # noqa: B018  (pandas imported for the fixtures' tables)

@@ -134,6 +134,11 @@ def run_depot(folder: str | Path, logger_map: str | Path, out: str | Path, *, bu
     if out.resolve() == folder.resolve() or folder.resolve() in out.resolve().parents:
         raise ConfigError(f"--out {out} is inside the depot folder {folder}, whose files are "
                           "the inputs. Fix: write the report elsewhere.")
+    from ebus_env.io.measured import FILL_POLICIES, GAP_POLICIES
+
+    if gaps not in GAP_POLICIES or fill not in FILL_POLICIES:
+        raise ConfigError(f"--gaps must be one of {', '.join(GAP_POLICIES)} and --fill one of "
+                          f"{', '.join(FILL_POLICIES)}; got '{gaps}' and '{fill}'.")
     check_folder(out, "--out", inputs=[Path(logger_map)])
     smap = load_signal_map(signal_map)
     loggers = read_logger_map(logger_map, smap.timezone)
