@@ -51,7 +51,7 @@ def write_summary(run, smap, loggers, rule, command: str = "") -> None:
     sections = []
     for b in run.workshop:
         sections.append(Section(f"Bus {b.bus}: workshop ({b.verdict or b.status})",
-                                f"{b.sentence} {b.why}".strip(),
+                                b.sentence or b.why,  # the sentence holds the why
                                 link=(os.path.relpath(b.report, out), "diagnosis report")
                                 if b.report else None))
     shown = buses.drop(columns=["sentence"])
