@@ -31,7 +31,8 @@ INNER = {  # layers inside a package, the same way
                        ("ebus_env.model.kernels",), ("ebus_env.model.model",)),
     "ebus_env.envs": (("ebus_env.envs.climate", "ebus_env.envs.reward", "ebus_env.envs.reference_vehicle",
                        "ebus_env.envs.course", "ebus_env.envs.render"),
-                      ("ebus_env.envs.batch",), ("ebus_env.envs.common",),
+                      ("ebus_env.envs.batch",), ("ebus_env.envs.charging_site",),
+                      ("ebus_env.envs.common",),
                       ("ebus_env.envs.ebus", "ebus_env.envs.vector", "ebus_env.envs.fleet"),
                       ("ebus_env.envs.sb3",)),
 }
@@ -114,3 +115,15 @@ def test_no_two_modules_share_a_name():
         if path.name != "__init__.py":
             seen.setdefault(path.stem, []).append(module)
     assert {name: where for name, where in seen.items() if len(where) > 1} == {}
+
+
+def test_the_study_drives_buses_only_through_the_site_step():
+    """The study and the fleet env share one site step (ebus_env.envs.charging_site): the
+    study neither shares plugs itself nor reaches into a batch's input rows."""
+    import re
+
+    found = [f"{path.relative_to(ROOT)}: {word}" for path in (ROOT / "ebus_env" / "study")
+             .rglob("*.py") for word in (r"\bshare_site\b", r"\brows_at\b",
+                                         r"(?<!ebus_env)\.inputs\b")
+             if re.search(word, path.read_text())]
+    assert found == []

@@ -11,7 +11,6 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 import ebus_env  # noqa: F401  (registers the environments)
-from ebus_env.envs.fleet import CONNECTED, RATING
 from ebus_env.envs.vector import EBusVectorEnv
 
 SHORT = {"service_h": 0.3}  # 18 decisions: episodes end and restart within a test
@@ -160,8 +159,7 @@ def run_fleet(env, charge_frac=1.0, decisions=None):
     out = []
     while True:
         _, _, terminated, truncated, info = env.step(a)
-        rows = [(line.inputs[:, line.rows_at[CONNECTED]].copy(),
-                 line.inputs[:, line.rows_at[RATING]].copy()) for line in u.lines]
+        rows = [tuple(r.copy() for r in line.charger_rows()) for line in u.lines]
         out.append((info["site_grid_kw"], rows, sum(b["grid_kw"] for b in info["buses"])))
         if terminated or truncated or (decisions and len(out) >= decisions):
             return out, info
@@ -289,3 +287,32 @@ def test_vector_env_takes_a_numpy_integer_and_refuses_out_of_order_use():
         EBusVectorEnv(num_envs=2, autoreset_mode="Disabled", **SHORT)
     with pytest.raises(ConfigError, match="autoreset_mode = 'sometimes'"):
         EBusVectorEnv(num_envs=2, autoreset_mode="sometimes", **SHORT)
+
+
+def test_the_site_step_counts_plug_rows_and_shares_no_plug_it_lacks():
+    """The one site step (fleet env and study): bus-rows on a plug never exceed the plugs,
+    every layover row is either held or waited, and a site without a plug holds none."""
+    from ebus_env.envs.batch import BusBatch
+    from ebus_env.envs.charging_site import ChargingSite
+    from ebus_env.envs.common import EnvConfig
+
+    cfg = EnvConfig.load("sort2_day", service_h=2.0)
+    counts = {}
+    for chargers in (0, 1, 6):
+        line = BusBatch(cfg, 6, offsets_s=np.arange(6) * 600.0)
+        site = ChargingSite([line], chargers, 600.0)
+        site.reset(np.random.default_rng(0))
+        values = np.tile([80.0, 1.5, 21.0, 1.0, 1.0], (6, 1))
+        held_max = 0
+        for _ in range(120):
+            site.step(values)
+            connected, _ = line.charger_rows()
+            held_max = max(held_max, int((connected > 0.5).sum(axis=0).max()))
+            assert site.plugged.sum() <= chargers
+        assert held_max <= chargers
+        counts[chargers] = (site.held_rows, site.waited_rows)
+    assert counts[0][0] == 0.0 and counts[0][1] > 0.0  # layovers asked, nobody plugged
+    assert counts[1][0] > 0.0 and counts[1][1] > 0.0  # one plug: some waited
+    assert counts[6][1] == 0.0  # a plug per bus: nobody waits
+    # every layover row asked for a plug, held or not: one plug holds fewer, waits the rest
+    assert counts[1][0] < counts[6][0]

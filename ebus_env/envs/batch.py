@@ -79,6 +79,8 @@ AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc"
  A_MOTOR, A_CHARGER, A_SHORTFALL, A_OHMIC, A_COULOMBIC, A_GRID, A_PEAK_GRID) = range(len(AT))
 SHAPE_H = np.array(COMMUTER_SHAPE.presets["commuter"].x, float)
 SHAPE = np.array(COMMUTER_SHAPE.presets["commuter"].y, float)
+_CONNECTED = reference.ROW_NAMES.index("charger_connected")
+_RATING = reference.ROW_NAMES.index("charger_rating_w")
 THREADS_FROM = 16  # buses per batch from which a decision is split over threads
 
 @numba.njit(cache=True, nogil=True)
@@ -393,6 +395,23 @@ class BusBatch:
         _after(lo, hi, self.book, self.states, self.ref, self.acc, self._load_cols, self.const,
                self.at, c.speed_mps, c.grade_frac, c.baseline_s, c.dwell_s, self.rows,
                self.obs, self.quantities, self.out)
+
+    # -- the charger rows a site shares ---------------------------------------------------
+    @property
+    def has_charger(self) -> bool:
+        """Whether the bus model reads a charger's connection and rating (a site can share)."""
+        return bool(self.rows_at[_CONNECTED] >= 0 and self.rows_at[_RATING] >= 0)
+
+    @property
+    def charger_efficiency(self) -> float:
+        """The bus's charger efficiency (grid to pack) [1]."""
+        return float(self.params[0, self.efficiency_at])
+
+    def charger_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Views (n, n_rows) of the last drive's charger rows: connected (0/1) and rating [W]
+        (NaN off the charger), to be shared by a site before :meth:`run` (in place)."""
+        return (self.inputs[:, self.rows_at[_CONNECTED], :],
+                self.inputs[:, self.rows_at[_RATING], :])
 
     # -- results ---------------------------------------------------------------------------
     @property

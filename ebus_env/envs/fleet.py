@@ -3,15 +3,14 @@ connection, driven by one central agent."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
-import numba
 import numpy as np
 
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
+from ebus_env.envs.charging_site import ChargingSite
 from ebus_env.envs.common import (
     ACTIONS,
     EnvConfig,
@@ -21,7 +20,6 @@ from ebus_env.envs.common import (
     physical,
     reward_of,
 )
-from ebus_env.envs.reference_vehicle import ROW_NAMES
 from ebus_env.envs.reward import TERMS
 from ebus_env.errors import ConfigError, EnvError
 
@@ -31,8 +29,6 @@ SITE_OBSERVATIONS = (  # name, unit, low, high
     ("chargers_free", "1", 0.0, 100.0),
     ("buses_waiting", "1", 0.0, 100.0),
 )
-CONNECTED, RATING = ROW_NAMES.index("charger_connected"), ROW_NAMES.index("charger_rating_w")
-PLUGGED = [o[0] for o in OBSERVATIONS].index("charger_connected")
 SHARED = ("decision_s", "dt_s", "start_time_h", "service_h")  # the same on every line
 
 
@@ -80,48 +76,6 @@ class FleetConfig:
                                       f"runs one clock): {getattr(cfg, key)} vs "
                                       f"{getattr(first, key)}.")
         return out
-
-
-@numba.njit(cache=True, nogil=True)
-def share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
-               row0):
-    """The terminal's charging, row by row (in place): buses on a layover take a free plug
-    first come, first served (the others wait unconnected); the plugged buses' charger
-    ratings are scaled down together so that their grid draw, sum(P_rated / eta), stays
-    within ``limit_w`` (balanced sharing). ``plugged``, ``waiting_since`` (row index, -1:
-    not waiting) carry over between decisions; ``row0``: the first row's index."""
-    n, n_rows = connected.shape
-    for r in range(n_rows):
-        used = 0
-        for b in range(n):
-            if plugged[b] and connected[b, r] < 0.5:
-                plugged[b] = False
-            if connected[b, r] >= 0.5 and not plugged[b] and waiting_since[b] < 0:
-                waiting_since[b] = row0 + r
-            if connected[b, r] < 0.5:
-                waiting_since[b] = -1
-            used += plugged[b]
-        while used < chargers:  # the longest waiting takes the next free plug
-            first = -1
-            for b in range(n):
-                if waiting_since[b] >= 0 and (first < 0 or waiting_since[b] < waiting_since[first]):
-                    first = b
-            if first < 0:
-                break
-            plugged[first] = True
-            waiting_since[first] = -1
-            used += 1
-        draw_w = 0.0
-        for b in range(n):
-            if plugged[b]:
-                draw_w += rating_w[b, r] / efficiency[b]
-        scale = min(1.0, limit_w / draw_w) if draw_w > 0.0 else 1.0
-        for b in range(n):
-            if plugged[b]:
-                rating_w[b, r] *= scale
-            else:
-                connected[b, r] = 0.0
-                rating_w[b, r] = math.nan
 
 
 class EBusFleetEnv(gym.Env):
@@ -183,13 +137,16 @@ class EBusFleetEnv(gym.Env):
                               "info['site_load_kw'] and each bus's figures from info['buses'].")
         self.render_mode = render_mode
         self.config = cfg = FleetConfig.load(config, **overrides)
-        self.lines: list[BusBatch] = []
+        lines: list[BusBatch] = []
         for line_cfg, n in cfg.line_configs():
             line = BusBatch(line_cfg, n)
             line.offsets_s = np.arange(n) * line.lap_period_s / n  # equal headways
-            self.lines.append(line)
-        self.env_config = self.lines[0].config
-        self.n = sum(line.n for line in self.lines)
+            lines.append(line)
+        self.site = ChargingSite(lines, cfg.chargers, cfg.site_limit_kw)
+        self.lines = lines
+        self.env_config = lines[0].config
+        self.n = self.site.n
+        self.efficiency = self.site.efficiency  # each bus's charger efficiency
         self.reward_fn = reward_of(EnvConfig(reward=cfg.reward) if cfg.reward is not None
                                    else self.env_config)
         self.action_names = [f"bus{b}.{a.name}" for b in range(self.n) for a in ACTIONS]
@@ -201,26 +158,14 @@ class EBusFleetEnv(gym.Env):
                            ).astype(np.float32),
             np.concatenate([np.tile(OBS_HIGH, self.n), [o[3] for o in SITE_OBSERVATIONS]]
                            ).astype(np.float32), dtype=np.float32)
-        self._charger_rows = [(line.rows_at[CONNECTED], line.rows_at[RATING])
-                              for line in self.lines]
-        if any(c < 0 or r < 0 for c, r in self._charger_rows):
-            raise ConfigError("A fleet's bus model needs a charger (inputs charger_connected "
-                              "and charger_rating_w).")
-        self.efficiency = np.concatenate([  # each bus's charger efficiency
-            np.full(line.n, line.params[0, line.efficiency_at]) for line in self.lines])
-        self._edges = np.cumsum([0] + [line.n for line in self.lines])
+        self._edges = self.site.edges
         self._started = self._ended = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        for line in self.lines:
-            for b in range(line.n):
-                line.reset(b, self.np_random)
-        self._plugged = np.zeros(self.n, np.bool_)
-        self._waiting_since = np.full(self.n, -1, np.int64)
+        self.site.reset(self.np_random)
         self._site_kw: list[float] = []
         self._peak_kw = 0.0
-        self._decision = 0
         self._started, self._ended = True, False
         return self._observe(), {"observation_names": self.observation_names}
 
@@ -232,17 +177,10 @@ class EBusFleetEnv(gym.Env):
                            "start a new day.")
         values = physical(checked_actions(action, self.action_space.shape, self.action_names,
                                           "EBusFleet-v0").reshape(self.n, len(ACTIONS)))
-        for line, lo, hi in zip(self.lines, self._edges[:-1], self._edges[1:], strict=True):
-            line.values[:] = values[lo:hi]
-            line.drive(0, line.n)
-        self._share_site()
-        for line in self.lines:
-            line.run(0, line.n)
-        self._decision += 1
+        self.site.step(values)
         quantities = np.concatenate([line.quantities for line in self.lines])
         _, bus_costs = self.reward_fn(quantities)
-        grid_kw = np.concatenate([line.column("grid_kw") for line in self.lines])
-        site_kw = float(grid_kw.sum())
+        site_kw = float(self.site.column("grid_kw").sum())
         rise_kw = max(site_kw - self._peak_kw, 0.0)
         self._peak_kw = max(self._peak_kw, site_kw)
         self._site_kw.append(site_kw)
@@ -271,25 +209,11 @@ class EBusFleetEnv(gym.Env):
                         "info['buses'].")
         return None
 
-    def _share_site(self) -> None:
-        lines, at = self.lines, self._charger_rows
-        connected = np.concatenate([line.inputs[:, c, :] for line, (c, _) in zip(lines, at,
-                                                                                  strict=True)])
-        rating = np.concatenate([line.inputs[:, r, :] for line, (_, r) in zip(lines, at,
-                                                                              strict=True)])
-        share_site(connected, rating, self.efficiency, self._plugged, self._waiting_since,
-                   self.config.chargers, 1e3 * self.config.site_limit_kw,
-                   self._decision * lines[0].n_rows)
-        for line, (c, r), lo, hi in zip(lines, at, self._edges[:-1], self._edges[1:],
-                                        strict=True):
-            line.inputs[:, c, :] = connected[lo:hi]
-            line.inputs[:, r, :] = rating[lo:hi]
-
     def _observe(self) -> np.ndarray:
-        buses = np.concatenate([line.obs for line in self.lines])
-        buses[:, PLUGGED] = self._plugged  # "charger connected": holding a plug
-        waiting = int((self._waiting_since >= 0).sum())
-        site = np.array([self._site_kw[-1] if self._site_kw else 0.0, self._peak_kw,
-                         self.config.chargers - int(self._plugged.sum()), waiting], np.float32)
+        site = self.site
+        buses = site.observations()  # "charger connected": holding a plug
+        free = self.config.chargers - int(site.plugged.sum())
+        site = np.array([self._site_kw[-1] if self._site_kw else 0.0, self._peak_kw, free,
+                         site.waiting()], np.float32)
         obs = np.concatenate([buses.ravel(), site]).astype(np.float32)
         return np.clip(obs, self.observation_space.low, self.observation_space.high)

@@ -1,9 +1,10 @@
 """One scenario of a study: every line's buses through each seeded day at one site.
 
 The buses are the environments' compiled batches (:class:`ebus_env.envs.batch.BusBatch`, one
-per line); each decision the terminal's plugs and grid limit are shared row by row at 10 Hz by
-the fleet env's compiled :func:`ebus_env.envs.fleet.share_site` (first come, first served at a
-busy charger, ratings scaled together to the site limit). After service the depot recharges
+per line) at one :class:`ebus_env.envs.charging_site.ChargingSite`, the site step that
+``EBusFleet-v0`` takes too: each decision the terminal's plugs and grid limit are shared row
+by row at 10 Hz (first come, first served at a busy charger, ratings scaled together to the
+site limit). After service the depot recharges
 every bus to its start SoC on the depot chargers, behind the same site limit. All scenarios
 see the same days (common random numbers), so differences between them are not noise.
 """
@@ -18,8 +19,8 @@ import numba
 import numpy as np
 
 from ebus_env.envs.batch import ELAPSED_ROWS, OUT, BusBatch
+from ebus_env.envs.charging_site import ChargingSite
 from ebus_env.envs.common import ACTIONS, physical
-from ebus_env.envs.fleet import CONNECTED, PLUGGED, RATING, share_site
 from ebus_env.errors import ConfigError
 from ebus_env.study.scenarios import Scenario
 from ebus_env.study.study_file import StudySpec
@@ -62,16 +63,9 @@ class Site:
                 else 60.0 * line.headway_min
             batch.offsets_s = np.arange(line.buses) * period_s
             self.lines.append(batch)
-        first = self.lines[0]
-        for batch in self.lines:
-            if batch.rows_at[CONNECTED] < 0 or batch.rows_at[RATING] < 0:
-                raise ConfigError(f"The bus '{batch.config.bus}' has no charger effect.")
-        self.cfg = first.config
-        self.n = sum(b.n for b in self.lines)
-        self.edges = np.cumsum([0] + [b.n for b in self.lines])
-        self.efficiency = np.concatenate([
-            np.full(b.n, b.params[0, b.efficiency_at] if b.efficiency_at >= 0 else 1.0)
-            for b in self.lines])
+        self.site = ChargingSite(self.lines, infra.terminal_chargers, infra.site_limit_kw)
+        self.cfg = self.lines[0].config
+        self.n = self.site.n
         self.settings = np.array([v for _, v in strategy.settings])
         self.policy = policy(strategy.policy, strategy.policy_args) if strategy.policy else None
 
@@ -83,66 +77,36 @@ class Site:
                     _IDLE.setdefault((repr(batch.config), batch.n), []).append(batch)
         self.lines = []
 
-    def _site_arrays(self) -> tuple[np.ndarray, ...]:
-        """Every bus's terminal rows (charger connected, its rating) and the rows of its last
-        decision: a single line's own arrays (views that stay current), else copies."""
-        lines = self.lines
-        return (_gather([b.inputs[:, b.rows_at[CONNECTED], :] for b in lines]),
-                _gather([b.inputs[:, b.rows_at[RATING], :] for b in lines]),
-                _gather([b.rows for b in lines]))
-
     def day(self, day: int) -> dict:
         """Simulate one seeded day; the row of results (before costs)."""
         spec, infra, cfg = self.spec, self.scenario.infrastructure, self.cfg
         rng = np.random.default_rng([spec.days.seed, day])
         values = np.tile(self.settings, (self.n, 1))
-        for batch in self.lines:
-            for b in range(batch.n):
-                batch.reset(b, rng)
+        site = self.site
+        site.reset(rng)
         # traffic: each bus's top speed that day, lowered by up to traffic_random_frac
         slow = 1.0 - rng.uniform(0.0, spec.days.traffic_random_frac, self.n)
         step_s = cfg.decision_s
         n_steps = math.ceil(cfg.service_h * 3600.0 / step_s - 1e-9)
         site_kw = np.zeros(n_steps)
-        plugged = np.zeros(self.n, np.bool_)
-        waiting_since = np.full(self.n, -1, np.int64)
         lowest_soc = np.full(self.n, cfg.soc_start_pct / 100.0)
         net_kwh = np.zeros(self.n)  # battery chemical energy, net (what the depot restores)
         discharged_kwh = np.zeros(self.n)
         distance_km = np.zeros(self.n)
         empty_left_h = np.full(self.n, np.nan)
-        busy_rows = wait_rows = 0.0
-        limit_w = 1e3 * infra.site_limit_kw
-        lines, edges = self.lines, list(zip(self.edges[:-1], self.edges[1:], strict=True))
-        views = self._site_arrays() if len(lines) == 1 else None  # one line: once a day
+        lines, starts = self.lines, self.site.edges[:-1]
         for k in range(n_steps):
             if self.policy is not None or k == 0:  # fixed settings: the same every decision
                 if self.policy is not None:
-                    obs = np.concatenate([b.obs for b in lines])
-                    obs[:, PLUGGED] = plugged
                     values = physical(np.clip(np.asarray(self.policy.predict(
-                        obs, deterministic=True)[0], float).reshape(self.n, len(ACTIONS)),
-                        -1, 1))
+                        site.observations(), deterministic=True)[0], float).reshape(
+                            self.n, len(ACTIONS)), -1, 1))
                 v = values.copy()
                 v[:, SPEED_CAP] = np.maximum(v[:, SPEED_CAP] * slow, ACTIONS[SPEED_CAP].low)
-                for batch, (lo, hi) in zip(lines, edges, strict=True):
-                    batch.values[:] = v[lo:hi]
-            for batch in lines:
-                batch.drive(0, batch.n)
-            connected, rating, rows = views or self._site_arrays()
-            wanted, held = _share(connected, rating, rows,
-                                  self.efficiency, plugged, waiting_since,
-                                  infra.terminal_chargers, limit_w, k * connected.shape[1])
-            busy_rows += held
-            wait_rows += wanted - held
-            for batch, (lo, hi) in zip(lines, edges, strict=True):
-                if len(lines) > 1:  # one line shares its own arrays (views), the others copy
-                    batch.inputs[:, batch.rows_at[CONNECTED], :] = connected[lo:hi]
-                    batch.inputs[:, batch.rows_at[RATING], :] = rating[lo:hi]
-                batch.run(0, batch.n)
-            site_kw[k] = _gather([b.column("grid_kwh") for b in lines]).sum() / (step_s / 3600.0)
+            site.step(v)
+            site_kw[k] = site.column("grid_kwh").sum() / (step_s / 3600.0)
             ended = True
-            for batch, (lo, _) in zip(lines, edges, strict=True):
+            for batch, lo in zip(lines, starts, strict=True):
                 ended &= _tally(batch.out, batch.quantities, batch.obs, batch.book, lo,
                                 batch.service_rows, cfg.service_h, cfg.dt_s, net_kwh,
                                 discharged_kwh, distance_km, lowest_soc, empty_left_h)
@@ -151,7 +115,7 @@ class Site:
                 break
         dt_s = cfg.dt_s
         depot_kw, not_recharged, depot_busy_h = depot(
-            np.maximum(net_kwh, 0.0) / self.efficiency, infra.depot_chargers,
+            np.maximum(net_kwh, 0.0) / site.efficiency, infra.depot_chargers,
             infra.depot_charger_kw, infra.site_limit_kw, step_s / 3600.0,
             24.0 - len(site_kw) * step_s / 3600.0)
         load_kw = np.concatenate([site_kw, depot_kw])
@@ -172,38 +136,14 @@ class Site:
             "buses_below_reserve": int((100.0 * lowest_soc < cfg.reserve_soc_pct).sum()),
             "buses_not_recharged": int(not_recharged),
             "service_hours_lost": float(np.nansum(empty_left_h)),
-            "charger_utilisation": busy_rows / (max(infra.terminal_chargers, 1) * service_rows),
-            "charger_wait_bus_h": wait_rows * dt_s / 3600.0,
+            "charger_utilisation": site.held_rows / (max(infra.terminal_chargers, 1)
+                                                     * service_rows),
+            "charger_wait_bus_h": site.waited_rows * dt_s / 3600.0,
             "depot_utilisation": depot_busy_h / max(infra.depot_chargers, 1)
             / (24.0 - cfg.service_h),
             "load_step_s": step_s,
             "site_load_kw": load_kw,
         }
-
-
-@numba.njit(cache=True, nogil=True)
-def _share(connected, rating_w, rows, efficiency, plugged, waiting_since, chargers, limit_w,
-           row0):
-    """The terminal's plugs and limit shared over a decision's rows (``share_site``; with no
-    terminal charger nobody connects). Returns the bus-rows that wanted a plug and those
-    that held one, counting each bus's ``rows`` (a last decision may be short)."""
-    wanted = _live_rows(connected, rows)
-    if chargers == 0:
-        connected[:] = 0.0
-        rating_w[:] = math.nan
-    else:
-        share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
-                   row0)
-    return wanted, _live_rows(connected, rows)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _live_rows(connected, rows):
-    total = 0.0  # sums of 0s and 1s: exact in any order
-    for b in range(connected.shape[0]):
-        for r in range(rows[b]):
-            total += connected[b, r]
-    return total
 
 
 @numba.njit(cache=True, nogil=True)
@@ -224,11 +164,6 @@ def _tally(out, quantities, obs, book, lo, service_rows, service_h, dt_s, net_kw
             empty_left_h[i] = max(service_h - book[b, ELAPSED_ROWS] * dt_s / 3600.0, 0.0)
         ended &= book[b, ELAPSED_ROWS] >= service_rows - 0.5
     return ended
-
-
-def _gather(arrays: list[np.ndarray]) -> np.ndarray:
-    """The buses of every line in one array: a line's own array (a view) when there is one."""
-    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def depot(energy_kwh: np.ndarray, chargers: int, charger_kw: float, limit_kw: float,
