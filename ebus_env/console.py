@@ -58,6 +58,8 @@ FIGURES = [
     ("build_s", "model build and compile (or load from the cache)", "s", 2),
 ]
 
+ONLY_WHEN_SOME = {"battery_limited_s"}  # a figure that is zero on most runs, shown when not
+
 
 def summary_tables(summary: dict, title: str = ""):
     """Two rich tables: the figures, and the energy breakdown by effect."""
@@ -68,7 +70,8 @@ def summary_tables(summary: dict, title: str = ""):
     figures.add_column("value", justify="right")
     figures.add_column("unit")
     for key, label, unit, digits in FIGURES:
-        if key in summary and summary[key] is not None and not _nan(summary[key]):
+        if key in summary and summary[key] is not None and not _nan(summary[key]) and not (
+                key in ONLY_WHEN_SOME and summary[key] == 0):
             figures.add_row(label, f"{summary[key]:.{digits}f}", shown_unit(unit))
     breakdown = Table(title="energy breakdown", show_header=True, header_style="bold")
     breakdown.add_column("effect")
