@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from ebus_env.errors import ConfigError
@@ -274,54 +275,82 @@ def _grade_along(trip: Trip) -> tuple[np.ndarray, np.ndarray]:
     return x, grade_from_altitude(x, z)[0]
 
 
+@numba.njit(cache=True, nogil=True)
+def _fill_moves(t0, t_acc, t_cruise, t_dec, v, d0, trip, start_s, dt_s, first, speed, dist,
+                trip_of):
+    """The moves' speed [m/s] and distance along the trip [m] at rows ``first`` ... (row i at
+    ``start_s + i dt_s``), and each row's trip (-1 before the first move), in one pass."""
+    j = -1
+    m = len(t0)
+    for r in range(len(speed)):
+        t = start_s + (first + r) * dt_s
+        while j + 1 < m and t0[j + 1] <= t:
+            j += 1
+        if j < 0:
+            trip_of[r] = -1
+            continue
+        tau = t - t0[j]
+        ta, tc, td, vc = t_acc[j], t_cruise[j], t_dec[j], v[j]
+        a = vc / ta if ta > 0.0 else 0.0
+        b = vc / td if td > 0.0 else 0.0
+        if tau < ta:
+            speed[r] = a * tau
+            dist[r] = d0[j] + 0.5 * a * tau * tau
+        elif tau < ta + tc:
+            speed[r] = vc
+            dist[r] = d0[j] + 0.5 * vc * ta + vc * (tau - ta)
+        else:
+            t3 = min(tau - ta - tc, td)
+            speed[r] = max(vc - b * t3, 0.0) if tau - ta - tc < td else 0.0
+            dist[r] = d0[j] + 0.5 * vc * ta + vc * tc + vc * t3 - 0.5 * b * t3 * t3
+        trip_of[r] = trip[j]
+
+
+def _rows_of(t_from: float, t_to: float, start_s: float, first: int, n: int, dt_s: float
+             ) -> slice:
+    """The rows of [t_from, t_to) among rows first .. first + n - 1 (row i at start + i dt)."""
+    lo = int(np.ceil((t_from - start_s) / dt_s - 1e-9)) - first
+    hi = int(np.ceil((t_to - start_s) / dt_s - 1e-9)) - first
+    return slice(min(max(lo, 0), n), min(max(hi, 0), n))
+
+
 def drive_rows(block: Block, first: int, stop: int, dt_s: float, passengers: float = 0.0,
                block_plan: Plan | None = None) -> dict[str, np.ndarray]:
     """Rows ``first`` to ``stop`` - 1 of the block's drive (row ``i`` at ``start_s + i dt_s``):
     ``speed_ref_mps``, ``grade_frac``, ``charger_connected``, ``charger_rating_w`` (NaN off a
-    charger), ``passenger_count`` and ``distance_m`` (along the current trip). A window of
-    a long day is written alone (the network study writes a day hour by hour)."""
+    charger), ``passenger_count`` and ``distance_m`` (along the current trip)."""
     p = block_plan if block_plan is not None else plan(block)
-    t = block.start_s + dt_s * np.arange(first, stop)
-    n = len(t)
+    n = stop - first
+    start = block.start_s
     speed, grade, dist = np.zeros(n), np.zeros(n), np.zeros(n)
+    trip_of = np.full(n, -1, np.int64)
     if len(p.t0):
-        i = np.searchsorted(p.t0, t, side="right") - 1
-        on = i >= 0
-        j = np.where(on, i, 0)
-        tau = np.where(on, t - p.t0[j], 0.0)
-        ta, tc, td, v = p.t_acc[j], p.t_cruise[j], p.t_dec[j], p.v[j]
-        a, b = v / np.maximum(ta, 1e-9), v / np.maximum(td, 1e-9)
-        t2 = tau - ta - tc
-        s_acc = 0.5 * a * np.minimum(tau, ta) ** 2
-        s_cru = v * np.clip(tau - ta, 0.0, tc)
-        t3 = np.clip(t2, 0.0, td)
-        s_dec = v * t3 - 0.5 * b * t3 ** 2
-        speed = np.where(tau < ta, a * tau, np.where(t2 < 0.0, v, np.maximum(v - b * t2, 0.0)))
-        speed = np.where(on & (t2 < td), speed, 0.0)
-        dist = np.where(on, p.d0[j] + s_acc + s_cru + s_dec, 0.0)
-        trip_of = np.where(on, p.trip[j], -1)
-        for k in np.unique(trip_of[trip_of >= 0]):
-            trip = block.trips[k]
-            if trip.altitude is not None:
-                rows = trip_of == k
-                x, g = _grade_along(trip)
-                grade[rows] = np.interp(dist[rows], x, g)
+        _fill_moves(p.t0, p.t_acc, p.t_cruise, p.t_dec, p.v, p.d0, p.trip, start, dt_s, first,
+                    speed, dist, trip_of)
     connected = np.zeros(n)
     rating = np.full(n, np.nan)
     people = np.full(n, float(passengers))
-    for trip in block.trips:
-        inside = (t >= trip.start_s) & (t < trip.end_s)
+    for k, trip in enumerate(block.trips):
+        rows = _rows_of(trip.start_s, trip.end_s, start, first, n, dt_s)
+        if rows.start >= rows.stop:
+            continue
         if trip.passengers is not None or not trip.revenue:
-            people[inside] = trip.passengers if trip.passengers is not None else 0.0
-        if trip.cycle is not None and inside.any():
+            people[rows] = trip.passengers if trip.passengers is not None else 0.0
+        if trip.cycle is not None:
             v_c, g_c, d_c = _cycle_rows(trip.cycle, dt_s)
-            r = np.minimum(((t[inside] - trip.start_s) / dt_s).round().astype(int), len(v_c) - 1)
-            speed[inside], grade[inside], dist[inside] = v_c[r], g_c[r], d_c[r]
+            r = np.minimum(np.arange(rows.start, rows.stop) + first
+                           - int(round((trip.start_s - start) / dt_s)), len(v_c) - 1)
+            speed[rows], grade[rows], dist[rows] = v_c[r], g_c[r], d_c[r]
+        elif trip.altitude is not None:
+            x, g = _grade_along(trip)
+            mine = trip_of[rows] == k
+            grade[rows] = np.where(mine, np.interp(dist[rows], x, g), 0.0)
     for lay in block.layovers():
         if lay.charger is not None:
-            on_it = (t >= lay.start_s) & (t < lay.end_s) & (speed <= 0.0)
-            connected[on_it] = 1.0
-            rating[on_it] = 1e3 * lay.charger.power_kw
+            rows = _rows_of(lay.start_s, lay.end_s, start, first, n, dt_s)
+            standing = speed[rows] <= 0.0
+            connected[rows] = np.where(standing, 1.0, 0.0)
+            rating[rows] = np.where(standing, 1e3 * lay.charger.power_kw, np.nan)
     return {"speed_ref_mps": speed, "grade_frac": grade, "charger_connected": connected,
             "charger_rating_w": rating, "passenger_count": people, "distance_m": dist}
 

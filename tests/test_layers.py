@@ -17,7 +17,7 @@ LAYERS = (  # lowest first; a module may import its own layer and those below
     ("ebus_env.config",),
     ("ebus_env.cycles", "ebus_env.routes", "ebus_env.io", "ebus_env.synthetic",
      "ebus_env.simulate", "ebus_env.blocks"),
-    ("ebus_env.calibration",),
+    ("ebus_env.calibration", "ebus_env.gtfs"),
     ("ebus_env.diagnostics", "ebus_env.envs"),
     ("ebus_env.console", "ebus_env.plotting", "ebus_env.demo"),
     ("ebus_env.study", "ebus_env.depot"),

@@ -176,3 +176,22 @@ class ChargingSite:
     def waiting(self) -> int:
         """Buses on a layover waiting for a plug."""
         return int((self.waiting_since >= 0).sum())
+
+
+def share_plugs(connected: np.ndarray, rating_w: np.ndarray, efficiency: np.ndarray,
+                chargers: int, limit_w: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+    """A terminal's plugs shared over given rows (buses, rows) from a free start, by the same
+    rule as the site step (:func:`share_site`: first come, first served, ratings scaled to
+    ``limit_w``): for schedules whose layovers are known before the physics runs (a
+    timetable's blocks). Returns new (connected, rating [W]) arrays; rows without a plug are
+    0 and NaN."""
+    connected = np.array(connected, float)
+    rating = np.array(rating_w, float)
+    n = connected.shape[0]
+    if chargers <= 0:
+        connected[:] = 0.0
+        rating[:] = math.nan
+        return connected, rating
+    share_site(connected, rating, np.asarray(efficiency, float), np.zeros(n, np.bool_),
+               np.full(n, -1, np.int64), int(chargers), float(limit_w), 0)
+    return connected, rating

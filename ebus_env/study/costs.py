@@ -91,3 +91,13 @@ class CostModel:
             / self.battery_cycle_life_efc,
         }
 
+
+
+def add_costs(row: dict, cost: dict[str, float]) -> dict:
+    """A day's row with its cost by part per km, in all, per day, and its grid kWh per km."""
+    km = max(row["distance_km"], 1e-9)
+    row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
+    row["cost_per_km"] = sum(cost.values()) / km
+    row["cost_day"] = sum(cost.values())
+    row["kwh_per_km"] = row["grid_kwh"] / km
+    return row

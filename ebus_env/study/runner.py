@@ -22,6 +22,7 @@ from ebus_env.envs.batch import ELAPSED_ROWS, OUT, BusBatch
 from ebus_env.envs.charging_site import ChargingSite
 from ebus_env.envs.common import ACTIONS, physical
 from ebus_env.errors import ConfigError
+from ebus_env.study.costs import add_costs
 from ebus_env.study.scenarios import Scenario
 from ebus_env.study.study_file import StudySpec
 
@@ -192,6 +193,11 @@ def run_scenario(spec: StudySpec, scenario: Scenario, days: list[int] | None = N
                  ) -> list[dict]:
     """The ``days`` (default: every day) of ``scenario``: one row each, with the costs per
     km."""
+    if spec.gtfs is not None:  # a timetable: the network's blocks (ebus_env.study.network)
+        from ebus_env.study.network import network_rows
+
+        return network_rows(spec, scenario, list(range(spec.days.count)) if days is None
+                            else days)
     site = Site(spec, scenario)
     infra, costs = scenario.infrastructure, spec.costs
     rows = []
@@ -201,11 +207,7 @@ def run_scenario(spec: StudySpec, scenario: Scenario, days: list[int] | None = N
             cost = costs.day(row["site_load_kw"], row["load_step_s"] / 3600.0,
                              site.cfg.start_time_h, row["site_peak_15min_kw"],
                              infra.installed_kw, row["battery_discharged_kwh"])
-            km = max(row["distance_km"], 1e-9)
-            row.update({f"cost_{part}_per_km": value / km for part, value in cost.items()})
-            row["cost_per_km"] = sum(cost.values()) / km
-            row["cost_day"] = sum(cost.values())
-            row["kwh_per_km"] = row["grid_kwh"] / km
+            add_costs(row, cost)
             rows.append({**scenario.columns(), "day": day, **row})
     finally:
         site.close()

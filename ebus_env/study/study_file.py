@@ -17,6 +17,14 @@ A study YAML has the keys of :class:`StudySpec`::
       - {name: eco_charging, charge_power_frac: 0.6, pulse_duty: 0.8}
     days: {count: 3, seed: 0, traffic_random_frac: 0.1}
     costs: {...}      # every key of ebus_env.study.costs.CostModel, none defaulted
+
+or, for a timetable, ``gtfs`` (the keys of :class:`GtfsSpec`) instead of ``lines``: the
+feed's blocks are the buses, ``terminal_chargers`` x ``terminal_charger_kw`` stand at each of
+its ``terminals``, ``site_limit_kw`` is the depot's grid limit, and each strategy names a
+``depot_plan`` (``optimal``, ``on_arrival``, ``flat``; all three when ``strategies`` is left
+out)::
+
+    gtfs: {feed: data/gtfs/king_county_example.zip, date: 2024-03-12, terminals: [kc45_A]}
 """
 
 from __future__ import annotations
@@ -38,6 +46,8 @@ INFRA_KEYS = ("terminal_chargers", "terminal_charger_kw", "depot_chargers", "dep
               "site_limit_kw")
 DAY_KEYS = {"count", "seed", "traffic_random_frac", "ambient_random_k", "passengers_random_frac"}
 STRATEGY_KEYS = {"name", "policy", "policy_args", "decision_s"} | {a.name for a in ACTIONS}
+GTFS_STRATEGY_KEYS = {"name", "depot_plan"}
+DEPOT_PLANS = ("optimal", "on_arrival", "flat")
 # fixed settings of the baseline (no ECO feature): ebus_env.envs.ebus.ACTIONS' no-cap ends
 BASELINE = {"speed_cap_kmh": 80.0, "accel_cap_mps2": 1.5, "setpoint_degc": 21.0,
             "charge_power_frac": 1.0, "pulse_duty": 1.0}
@@ -91,6 +101,45 @@ class Strategy:
     policy: str | None = None
     decision_s: float = 60.0
     policy_args: dict = field(default_factory=dict)  # keyword arguments of the factory
+    depot_plan: str | None = None  # a timetable study's depot charging (DEPOT_PLANS)
+
+
+@dataclass(frozen=True)
+class GtfsSpec:
+    """A timetable study's network: a GTFS ``feed`` (zip or folder) on a service ``date``
+    (YYYY-MM-DD), the ``routes`` to electrify (short names or ids; None: all), the user's
+    ``altitude`` and ``speed_limits`` CSVs along the shapes (None: grade zero, the driver's
+    cap), the ``terminals`` (stop ids) that get the option's terminal chargers, the bus and
+    its SoC at the start of the day and the reserve it must keep, passengers on board
+    (``passengers``: a number per trip, or None: the commuter profile of ``days``' random
+    base/peak around ``passengers_base_frac``/``passengers_peak_frac``), and the vehicle
+    scheduling of trips without ``block_id``."""
+
+    feed: str
+    date: str
+    routes: tuple | None = None
+    altitude: str | None = None
+    speed_limits: str | None = None
+    terminals: tuple = ()
+    bus: str = "12m"
+    soc_start_pct: float = 95.0
+    reserve_soc_pct: float = 20.0
+    passengers: float | None = None
+    passengers_base_frac: float = 0.2
+    passengers_peak_frac: float = 0.8
+    min_layover_min: float = 3.0
+    deadhead_speed_kmh: float = 25.0
+    mixed_blocks: str = "whole"
+
+    def read(self):
+        """The service day's blocks (:func:`ebus_env.gtfs.read_network_day`)."""
+        from ebus_env.gtfs import read_network_day
+
+        return read_network_day(self.feed, self.date, routes=self.routes,
+                                altitude=self.altitude, speed_limits=self.speed_limits,
+                                min_layover_s=60.0 * self.min_layover_min,
+                                deadhead_speed_kmh=self.deadhead_speed_kmh,
+                                mixed_blocks=self.mixed_blocks)
 
 
 @dataclass(frozen=True)
@@ -117,6 +166,7 @@ class StudySpec:
     costs: CostModel
     climate: dict | None = None
     source: str = ""
+    gtfs: GtfsSpec | None = None
     raw: dict = field(default_factory=dict, compare=False, repr=False)  # as read (for workers)
 
     def env_config(self, line: Line, infra: Infrastructure, strategy: Strategy) -> EnvConfig:
@@ -152,33 +202,20 @@ def load_study(source: str | Path | dict) -> StudySpec:
 
 
 def _parse(data: dict, where: str) -> StudySpec:
-    check_keys(data, {"name", "lines", "climate", "infrastructure", "strategies", "days",
-                       "costs"}, "top level")
+    check_keys(data, {"name", "lines", "gtfs", "climate", "infrastructure", "strategies",
+                      "days", "costs"}, "top level")
+    if "gtfs" in data:
+        return _parse_gtfs(data, where)
     for key in ("lines", "infrastructure", "strategies", "costs"):
         if key not in data:
             raise ConfigError(f"missing '{key}' (see configs/studies/example.yaml).")
-    climate = data.get("climate")
-    if climate is not None:
-        check_keys(climate, {"place", "month"}, "climate")
-        if set(climate) != {"place", "month"}:
-            raise ConfigError("climate needs both 'place' and 'month' (1-12).")
-        climate_of(climate["place"]).ambient(climate["month"])
-    days = data.get("days") or {}
-    check_keys(days, DAY_KEYS, "days")
-    days = Days(**days)
-    positive(days.count, "days.count", integer=True)
-    positive(days.seed, "days.seed", integer=True, zero=True)
-    for key in ("traffic_random_frac", "passengers_random_frac", "ambient_random_k"):
-        positive(getattr(days, key), f"days.{key}", zero=True)
-    if days.traffic_random_frac >= 0.8:
-        raise ConfigError(f"days.traffic_random_frac = {days.traffic_random_frac}: give a "
-                          "fraction below 0.8 (the top speed lowered by up to it).")
+    climate, days = _climate_and_days(data)
     lines = _lines(data["lines"], climate)
     infra = _infrastructure(data["infrastructure"], lines)
     strategies = _strategies(data["strategies"])
     costs = CostModel.load(data["costs"])
     spec = StudySpec(str(data.get("name", "study")), lines, infra, strategies, days, costs,
-                     climate, where, data)
+                     climate, where, raw=data)
     from ebus_env.config import load_bus
     from ebus_env.envs.batch import course_of
 
@@ -195,6 +232,104 @@ def _parse(data: dict, where: str) -> StudySpec:
         raise ConfigError(f"service_h = {next(iter(service))}: a service day must leave time "
                           "(< 24 h) for the depot to recharge the buses.")
     return spec
+
+
+def _climate_and_days(data: dict) -> tuple[dict | None, Days]:
+    climate = data.get("climate")
+    if climate is not None:
+        check_keys(climate, {"place", "month"}, "climate")
+        if set(climate) != {"place", "month"}:
+            raise ConfigError("climate needs both 'place' and 'month' (1-12).")
+        climate_of(climate["place"]).ambient(climate["month"])
+    days = data.get("days") or {}
+    check_keys(days, DAY_KEYS, "days")
+    days = Days(**days)
+    positive(days.count, "days.count", integer=True)
+    positive(days.seed, "days.seed", integer=True, zero=True)
+    for key in ("traffic_random_frac", "passengers_random_frac", "ambient_random_k"):
+        positive(getattr(days, key), f"days.{key}", zero=True)
+    if days.traffic_random_frac >= 0.8:
+        raise ConfigError(f"days.traffic_random_frac = {days.traffic_random_frac}: give a "
+                          "fraction below 0.8 (the top speed lowered by up to it).")
+    return climate, days
+
+
+def _parse_gtfs(data: dict, where: str) -> StudySpec:
+    """A timetable study (``gtfs`` instead of ``lines``)."""
+    from datetime import date
+
+    from ebus_env import paths
+
+    if "lines" in data:
+        raise ConfigError("give either 'lines' (laps of a cycle or route) or 'gtfs' (a "
+                          "timetable), not both.")
+    for key in ("infrastructure", "costs"):
+        if key not in data:
+            raise ConfigError(f"missing '{key}' (see configs/studies/gtfs_example.yaml).")
+    raw = data["gtfs"]
+    check_keys(raw, {f.name for f in fields(GtfsSpec)}, "gtfs")
+    for key in ("feed", "date"):
+        if key not in raw:
+            raise ConfigError(f"gtfs: missing '{key}' (the feed, a zip or folder, and the "
+                              "service day, YYYY-MM-DD).")
+    keys = dict(raw)
+    try:
+        keys["date"] = date.fromisoformat(str(raw["date"])).isoformat()
+    except ValueError:
+        raise ConfigError(f"gtfs.date = {raw['date']!r}: give the service day as YYYY-MM-DD."
+                          ) from None
+    base = Path(where).parent if where != "study" else Path.cwd()
+    for key in ("feed", "altitude", "speed_limits"):
+        if keys.get(key) is not None:
+            path = Path(str(keys[key]))
+            keys[key] = str(path if path.is_absolute() or path.exists() else
+                            base / path if (base / path).exists() else
+                            paths.here_or_shipped(path))
+    for key in ("routes", "terminals"):
+        if keys.get(key) is not None:
+            if not isinstance(keys[key], list):
+                raise ConfigError(f"gtfs.{key} = {keys[key]!r}: give a list.")
+            keys[key] = tuple(str(x) for x in keys[key])
+    gtfs = GtfsSpec(**keys)
+    for key in ("soc_start_pct", "reserve_soc_pct", "min_layover_min", "deadhead_speed_kmh"):
+        positive(getattr(gtfs, key), f"gtfs.{key}", zero=key == "min_layover_min")
+    if not gtfs.reserve_soc_pct < gtfs.soc_start_pct <= 100.0:
+        raise ConfigError(f"gtfs: reserve_soc_pct = {gtfs.reserve_soc_pct} must lie below "
+                          f"soc_start_pct = {gtfs.soc_start_pct} <= 100.")
+    if gtfs.passengers is not None:
+        positive(gtfs.passengers, "gtfs.passengers", zero=True)
+    climate, days = _climate_and_days(data)
+    infra = _infrastructure(data["infrastructure"], ())
+    strategies = _depot_strategies(data.get("strategies"))
+    costs = CostModel.load(data["costs"])
+    from ebus_env.config import load_bus
+    from ebus_env.gtfs.feed import check_feed
+
+    load_bus(gtfs.bus)
+    check_feed(gtfs.feed)
+    return StudySpec(str(data.get("name", "timetable study")), (), infra, strategies, days,
+                     costs, climate, where, gtfs, data)
+
+
+def _depot_strategies(items) -> tuple[Strategy, ...]:
+    if items is None:
+        items = [{"name": p, "depot_plan": p} for p in DEPOT_PLANS]
+    if not isinstance(items, list) or not items:
+        raise ConfigError("strategies: give a list of depot plans, e.g. [{name: optimal, "
+                          "depot_plan: optimal}], or leave it out for all three.")
+    out = []
+    for i, item in enumerate(items):
+        check_keys(item, GTFS_STRATEGY_KEYS, f"strategies[{i}] (a timetable study's "
+                   "strategies are depot plans)")
+        plan = item.get("depot_plan", item.get("name"))
+        if plan not in DEPOT_PLANS:
+            raise ConfigError(f"strategies[{i}].depot_plan = {plan!r}: give one of "
+                              f"{', '.join(DEPOT_PLANS)}.")
+        out.append(Strategy(str(item.get("name", plan)), tuple(BASELINE.items()),
+                            depot_plan=plan))
+    if len({s.name for s in out}) < len(out):
+        raise ConfigError("strategies: each needs a name of its own.")
+    return tuple(out)
 
 
 def _lines(items, climate) -> tuple[Line, ...]:

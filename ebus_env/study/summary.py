@@ -160,7 +160,10 @@ def write_summary(spec, rows: pd.DataFrame, out: str | Path) -> pd.DataFrame:
         Section("Cost split", figures=[cost]),
         Section("Site load curves", figures=[load]),
         Section("Charger utilisation", figures=[use])]
-    lines = "; ".join(f"{ln.name}: {ln.buses} buses" for ln in spec.lines)
+    if spec.gtfs is not None:
+        sections += timetable_sections(spec, rows, summary, currency)
+    lines = "; ".join(f"{ln.name}: {ln.buses} buses" for ln in spec.lines) or \
+        f"GTFS {Path(spec.gtfs.feed).name} on {spec.gtfs.date}"
     write_report(
         out / "report.html", f"Fleet study: {spec.name}", sections, verdict=verdict,
         verdict_found=bool(len(best)),
@@ -178,3 +181,74 @@ def write_summary(spec, rows: pd.DataFrame, out: str | Path) -> pd.DataFrame:
                     "life); a scenario is feasible when no bus ran empty and the depot "
                     "recharged every bus overnight; per-day rows are in rows/*.parquet")
     return summary
+
+
+BLOCK_COLUMNS = (("block", "block"), ("trips", "trips"), ("km", "km"), ("kwh", "pack kWh"),
+                 ("lowest_soc_pct", "lowest SoC %"), ("lowest_at", "at"),
+                 ("lowest_where", "where"), ("empty_at", "empty at"),
+                 ("not_served", "trips not served"), ("depot_need_kwh", "depot need kWh"),
+                 ("depot_got_kwh", "depot gave kWh"), ("needs", "needs"))
+
+
+def timetable_sections(spec, rows: pd.DataFrame, summary: pd.DataFrame, currency: str
+                       ) -> list[Section]:
+    """A timetable study's own sections: what was read (and repaired), every block of the
+    chosen scenario (the cheapest feasible, else the cheapest), what the failing blocks need,
+    and the depot's load over the day under each depot plan of that option."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ebus_env.study.network import network_study
+
+    network = network_study(spec).network
+    ok = summary[summary["feasible"]]
+    chosen = (ok if len(ok) else summary).iloc[0]
+    mine = rows[(rows["scenario"] == chosen["scenario"]) & (rows["day"] == rows["day"].min())]
+    blocks = json.loads(mine["block_results"].iloc[0])
+    needs: dict[str, list[str]] = {}
+    for b in blocks:
+        if b["needs"]:
+            needs.setdefault(b["needs"], []).append(b["block"])
+    table = [[", ".join(b[c]) if isinstance(b[c], list) else str(b[c]) for c, _ in
+              BLOCK_COLUMNS] for b in blocks]
+    read = [f"{len(network.blocks)} blocks, {network.trips} trips on {network.date}; blocks from "
+            f"{network.scheduled}."] + network.notes
+    if network.not_driven:
+        read.append("Not driven: " + "; ".join(f"{k}: {v}" for k, v in
+                                                 network.not_driven.items()))
+    if network.trips_not_served:
+        read.append(f"{len(network.trips_not_served)} trip(s) of the feed not served: "
+                    + ", ".join(list(network.trips_not_served)[:10]))
+    advice = "; ".join(f"{k}: {len(v)} block(s) ({', '.join(v[:8])}"
+                       f"{' ...' if len(v) > 8 else ''})" for k, v in needs.items()) or \
+        "every block keeps its reserve and is recharged."
+    fig, ax = plt.subplots(figsize=(9, 4), constrained_layout=True)
+    option = rows[(rows["infrastructure"] == chosen["infrastructure"])
+                  & (rows["day"] == rows["day"].min())]
+    hours = np.arange(96) * 0.25
+    for _, r in option.iterrows():
+        ax.step(hours, np.asarray(r["depot_load_kw"]), where="post",
+                label=f"{r['strategy']} (cost {r['cost_per_km']:.3f} {currency}/km)")
+    ax.set(xlabel="hour of day (a block past midnight loads the next morning)",
+           ylabel="depot load [kW] (15-min means)", xlim=(0, 24),
+           title=f"Depot load over the day: {chosen['infrastructure']}")
+    ax.set_xticks(range(0, 25, 2))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    timeline = Figure.of(fig, "depot_timeline", "depot load over the day per depot plan")
+    header = [h for _, h in BLOCK_COLUMNS]
+    return [
+        Section("Timetable read", " ".join(read)),
+        Section("What the blocks need", f"Scenario {chosen['scenario']}, day "
+                f"{int(mine['day'].iloc[0])}: {advice} A block needs something when it falls "
+                "below the reserve or runs empty: 'a charger' when it meets none and a 300 kW "
+                "plug on its layovers would cover the energy it lacks, 'a bigger pack' when a "
+                "pack of at most 1.5 x today's would, else 'a swap'.",
+                [Table(header, table)]),
+        Section("Depot load timeline", "The depot's overnight charging under each plan of "
+                "the chosen option, in 15-min steps (the plans' cost and peak are in the "
+                "scenarios' table).", figures=[timeline])]
