@@ -96,10 +96,23 @@ def check_feed(path: str | Path) -> Path:
     return path
 
 
-def _by_date(path: Path, day: Date) -> frozenset:
+def _partridge():
+    import warnings
+
     import partridge as ptg
 
-    dates = ptg.read_service_ids_by_date(str(path))
+    warnings.filterwarnings("ignore", module="partridge")  # its pandas deprecations, not ours
+    return ptg
+
+
+def _load(path: Path, services):
+    """The feed's tables for ``services`` (partridge reads them on first use)."""
+    f = _partridge().load_feed(str(path), view={"trips.txt": {"service_id": list(services)}})
+    return f
+
+
+def _by_date(path: Path, day: Date) -> frozenset:
+    dates = _partridge().read_service_ids_by_date(str(path))
     if day not in dates:
         span = f"{min(dates)} to {max(dates)}" if dates else "no date at all"
         raise ConfigError(f"GTFS feed {path}: no service runs on {day} (its calendar covers "
@@ -153,17 +166,26 @@ def _shape_points(shapes: pd.DataFrame) -> dict[str, pd.DataFrame]:
 
 
 def _along_shape(lat, lon, shape: pd.DataFrame) -> tuple[np.ndarray, float]:
-    """Stops projected on a shape's points, in order (never backwards): distance along the
-    shape [m] and the largest gap from a stop to its point [m]."""
+    """Stops projected onto a shape's polyline, in order (never backwards): distance along the
+    shape [m] and the largest gap from a stop to the line [m] (a local flat projection)."""
     slat, slon = shape["shape_pt_lat"].to_numpy(float), shape["shape_pt_lon"].to_numpy(float)
-    cum = np.concatenate([[0.0], np.cumsum(haversine_m(slat[:-1], slon[:-1], slat[1:],
-                                                       slon[1:]))])
-    out, worst, j0 = np.zeros(len(lat)), 0.0, 0
-    for i in range(len(lat)):
-        d = haversine_m(lat[i], lon[i], slat[j0:], slon[j0:])
-        j = j0 + int(np.argmin(d))
-        worst = max(worst, float(d[j - j0]))
-        out[i], j0 = cum[j], j
+    k = np.radians(1.0) * EARTH_M
+    cos = np.cos(np.radians(slat.mean()))
+    px, py = slon * k * cos, slat * k
+    sx, sy = np.asarray(lon, float) * k * cos, np.asarray(lat, float) * k
+    dx, dy = np.diff(px), np.diff(py)
+    seg = np.hypot(dx, dy)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    out, worst, pos = np.zeros(len(sx)), 0.0, 0.0
+    for i in range(len(sx)):
+        u = np.clip(((sx[i] - px[:-1]) * dx + (sy[i] - py[:-1]) * dy)
+                    / np.maximum(seg * seg, 1e-9), 0.0, 1.0)
+        along = cum[:-1] + u * seg
+        gap = np.hypot(px[:-1] + u * dx - sx[i], py[:-1] + u * dy - sy[i])
+        gap = np.where(along >= pos - 1.0, gap, np.inf)  # never backwards
+        j = int(np.argmin(gap))
+        worst = max(worst, float(gap[j]))
+        out[i] = pos = float(along[j])
     return out, worst
 
 
@@ -212,8 +234,6 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
                      detour_factor: float = 1.3, mixed_blocks: str = "whole") -> NetworkDay:
     """The blocks of a service day of a GTFS feed (zip or folder), for the ``routes``
     (route_short_name or route_id; None: all) to electrify. See the module docstring."""
-    import partridge as ptg
-
     from ebus_env.gtfs.scheduling import chain_trips, deadhead
 
     path = check_feed(feed)
@@ -222,7 +242,7 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
         raise ConfigError(f"mixed_blocks = {mixed_blocks!r}: give 'whole' (electrify a block "
                           "with all its trips) or 'report' (list it, do not drive it).")
     services = _by_date(path, day)
-    f = ptg.load_feed(str(path), view={"trips.txt": {"service_id": list(services)}})
+    f = _load(path, services)
     notes: list[str] = [f"service {day}: {len(services)} service id(s) "
                         f"({', '.join(sorted(map(str, services))[:5])})"]
     trips, times, stops = f.trips.copy(), f.stop_times.copy(), f.stops
