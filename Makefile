@@ -1,6 +1,7 @@
 # Two commands do all set-up on a fresh machine (Python 3.11):
 #   make demo    install into .venv and run the main job on bundled data -> report/index.html
-#                and a small fleet study -> report/study/report.html
+#                a small fleet study -> report/study/report.html and a timetable (GTFS)
+#                study -> report/gtfs_study/report.html
 #   make test    install into .venv and run the fast tests (the ones not marked slow)
 #   make test-all   ... and every test, the slow ones too (what CI runs)
 # Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
@@ -22,6 +23,7 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(VENV)/bin/ebus demo --out report
 	$(VENV)/bin/ebus study configs/studies/example.yaml --out report/study --resume
+	$(VENV)/bin/ebus study configs/studies/gtfs_example.yaml --out report/gtfs_study --resume
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2 -m "not slow"

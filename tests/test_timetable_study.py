@@ -20,7 +20,7 @@ def example(**gtfs) -> dict:
     data = yaml.safe_load(paths.configs("studies").joinpath("gtfs_example.yaml").read_text())
     for key in ("feed", "altitude", "speed_limits"):
         data["gtfs"][key] = str(paths.data("gtfs", data["gtfs"][key].split("/")[-1]))
-    data["gtfs"].update(routes=["45"], **gtfs)
+    data["gtfs"].update(routes=["45"], terminals=["kc45_A"], **gtfs)
     data["infrastructure"].update(terminal_chargers=[0, 1], terminal_charger_kw=300,
                                   depot_chargers=6)
     return data

@@ -106,9 +106,19 @@ def _partridge():
 
 
 def _load(path: Path, services):
-    """The feed's tables for ``services`` (partridge reads them on first use)."""
-    f = _partridge().load_feed(str(path), view={"trips.txt": {"service_id": list(services)}})
-    return f
+    """The feed's tables, read and parsed (times to seconds) by partridge on first use. Its
+    pruning along the files' dependencies is left out (a config with its parsers but no
+    edges): pandas' string ``isin`` is slow on large tables, so the day's trips and their stop
+    times are picked here (:func:`_in`)."""
+    ptg = _partridge()
+    from partridge.config import add_node_config, empty_config
+
+    return ptg.load_feed(str(path), config=add_node_config(empty_config()))
+
+
+def _in(column: pd.Series, values) -> np.ndarray:
+    """Where ``column``'s values are among ``values`` (hashed, as plain Python strings)."""
+    return column.astype(object).isin(set(map(str, values))).to_numpy()
 
 
 def _by_date(path: Path, day: Date) -> frozenset:
@@ -151,9 +161,9 @@ def _expand_frequencies(trips: pd.DataFrame, times: pd.DataFrame, freq: pd.DataF
                 copies += 1
     notes.append(f"frequencies.txt: {freq['trip_id'].nunique()} trip(s) run at headways "
                  f"expanded into {copies} departures")
-    keep = ~trips["trip_id"].isin(freq["trip_id"])
+    keep = ~_in(trips["trip_id"], freq["trip_id"])
     trips = pd.concat([trips[keep], *new_trips], ignore_index=True)
-    times = pd.concat([times[~times["trip_id"].isin(freq["trip_id"])], *new_times],
+    times = pd.concat([times[~_in(times["trip_id"], freq["trip_id"])], *new_times],
                       ignore_index=True)
     return trips, times
 
@@ -245,7 +255,9 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
     f = _load(path, services)
     notes: list[str] = [f"service {day}: {len(services)} service id(s) "
                         f"({', '.join(sorted(map(str, services))[:5])})"]
-    trips, times, stops = f.trips.copy(), f.stop_times.copy(), f.stops
+    trips = f.trips[_in(f.trips["service_id"], services)].copy()
+    times = f.stop_times[_in(f.stop_times["trip_id"], trips["trip_id"])].copy()
+    stops = f.stops
     route_names = f.routes.set_index("route_id")
     short = route_names["route_short_name"] if "route_short_name" in route_names else \
         pd.Series(dtype=str)
@@ -268,7 +280,7 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
                      f"{', '.join(no_times[:5])}{' ...' if len(no_times) > 5 else ''}")
         for t in no_times:
             not_served[t] = "no stop times in stop_times.txt"
-        trips = trips[~trips["trip_id"].isin(no_times)]
+        trips = trips[~_in(trips["trip_id"], no_times)]
     # times at stops that are not timepoints: interpolated by distance below
     stop_xy = stops.set_index("stop_id")[["stop_lat", "stop_lon"]]
     missing_stops = sorted(set(times["stop_id"]) - set(stop_xy.index))
@@ -288,35 +300,43 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
     shapes = _shape_points(getattr(f, "shapes", None))
     alt = _profile_csv(altitude, "altitude_m", factor, "altitude")
     lim = _profile_csv(speed_limits, "speed_limit_kmh", factor, "speed limit")
-    trip_rows = trips.set_index("trip_id")
+    info = {r["trip_id"]: r for r in trips.to_dict("records")}
     made: dict[str, Trip] = {}
     repairs = {"interpolated": 0, "projected": 0, "straight": 0, "mismatch": []}
     flat = 0
-    for trip_id, g in times.groupby("trip_id", sort=False):
-        if trip_id not in trip_rows.index:
+    # every trip's rows as slices of plain arrays (times are sorted by trip, stop_sequence)
+    trip_col = times["trip_id"].astype(str).to_numpy()
+    starts = np.flatnonzero(np.concatenate([[True], trip_col[1:] != trip_col[:-1]]))
+    ends = np.append(starts[1:], len(trip_col))
+    arr_all = times["arrival_time"].to_numpy(float)
+    dep_all = times["departure_time"].to_numpy(float)
+    stop_all = times["stop_id"].astype(str).to_numpy()
+    seq_all = times["stop_sequence"].to_numpy()
+    dist_all = times["shape_dist_traveled"].to_numpy(float) * factor if has_dist else \
+        np.full(len(times), np.nan)
+    for lo, hi in zip(starts, ends, strict=True):
+        trip_id = trip_col[lo]
+        row = info.get(trip_id)
+        if row is None:
             continue
-        idx = g.index.to_numpy()
-        pos = times.index.get_indexer(idx)
-        info = trip_rows.loc[trip_id]
-        shape_id = str(info["shape_id"]) if "shape_id" in info and pd.notna(
-            info.get("shape_id")) else None
-        d = g["shape_dist_traveled"].to_numpy(float) * factor if has_dist else \
-            np.full(len(g), np.nan)
+        shape = row.get("shape_id")
+        shape_id = str(shape) if shape is not None and pd.notna(shape) and str(shape) else None
+        d = dist_all[lo:hi]
         if not np.isfinite(d).all():
             if shape_id in shapes:
-                d, worst = _along_shape(lat[pos], lon[pos], shapes[shape_id])
+                d, worst = _along_shape(lat[lo:hi], lon[lo:hi], shapes[shape_id])
                 if worst > SHAPE_MATCH_M:
                     repairs["mismatch"].append(f"{trip_id} ({worst:.0f} m from {shape_id})")
-                    d = straight[pos]
+                    d = straight[lo:hi]
                 else:
                     repairs["projected"] += 1
             else:
-                d = straight[pos]
+                d = straight[lo:hi]
                 repairs["straight"] += 1
-        if len(g) < 2:
+        if hi - lo < 2:
             not_served[trip_id] = "fewer than two stop times"
             continue
-        arr, dep = g["arrival_time"].to_numpy(float), g["departure_time"].to_numpy(float)
+        arr, dep = arr_all[lo:hi], dep_all[lo:hi]
         arr = np.where(np.isnan(arr), dep, arr)
         dep = np.where(np.isnan(dep), arr, dep)
         if np.isnan(arr[[0, -1]]).any():
@@ -329,23 +349,22 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
             repairs["interpolated"] += 1
         back = (np.diff(arr) < 0) | (np.diff(d) < -1.0)
         if back.any():
-            seq = g["stop_sequence"].iloc[int(np.argmax(back)) + 1]
+            seq = seq_all[lo + int(np.argmax(back)) + 1]
             raise ConfigError(f"stop_times.txt: trip {trip_id} goes back in time or distance "
                               f"at stop_sequence {seq}: fix its times or shape_dist_traveled.")
+        offset = float(d[0]) if has_dist else 0.0  # where the trip starts on its shape
         d = np.maximum.accumulate(d - d[0])
-        ids = g["stop_id"].astype(str).to_numpy()
-        st = tuple(StopTime(s, float(a), float(b), float(x))
-                   for s, a, b, x in zip(ids, arr, dep, d, strict=True))
+        ids = stop_all[lo:hi]
+        st = tuple(map(StopTime, ids.tolist(), arr.tolist(), dep.tolist(), d.tolist()))
         a_prof = None
         if shape_id in alt:
-            a_prof = _clip_profile(*alt[shape_id], g, factor, has_dist, d)
+            a_prof = _clip_profile(*alt[shape_id], offset, d[-1])
         else:
             flat += 1
-        l_prof = _clip_profile(*lim[shape_id], g, factor, has_dist, d) if shape_id in lim \
-            else None
-        made[trip_id] = Trip(str(trip_id), str(info["route_name"]), float(dep[0]),
-                             float(arr[-1]), ids[0], ids[-1], float(d[-1]), st,
-                             altitude=a_prof, speed_limit=l_prof)
+        l_prof = _clip_profile(*lim[shape_id], offset, d[-1]) if shape_id in lim else None
+        made[trip_id] = Trip(trip_id, str(row["route_name"]), float(dep[0]), float(arr[-1]),
+                             ids[0], ids[-1], float(d[-1]), st, altitude=a_prof,
+                             speed_limit=l_prof)
     if repairs["interpolated"]:
         notes.append(f"{repairs['interpolated']} trip(s) had stops without times (not "
                      "timepoints): times interpolated by distance between timepoints")
@@ -364,7 +383,7 @@ def read_network_day(feed: str | Path, day: Date | str, *, routes=None,
                      + ("no altitude file given" if altitude is None else
                         "their shape is not in the altitude file"))
     # blocks: the feed's block_id, else chained by the scheduler
-    ordered = trips[trips["trip_id"].isin(made)].copy()
+    ordered = trips[_in(trips["trip_id"], made)].copy()
     ordered["start"] = [made[t].start_s for t in ordered["trip_id"]]
     ordered = ordered.sort_values("start")
     has_block = "block_id" in ordered and ordered["block_id"].notna()
@@ -433,15 +452,13 @@ def _route_id(trips: pd.DataFrame, trip: Trip) -> str:
     return str(row.iloc[0]) if len(row) else ""
 
 
-def _clip_profile(x, z, g, factor, has_dist, d):
-    """A shape's profile (distance along the shape [m], value) along a trip's distance
-    ``d`` (from 0 at its first stop): shifted by the first stop's place on the shape."""
-    offset = float(g["shape_dist_traveled"].iloc[0]) * factor if has_dist and np.isfinite(
-        g["shape_dist_traveled"].iloc[0]) else 0.0
-    keep = (x >= offset - 50.0) & (x <= offset + d[-1] + 50.0)
-    if keep.sum() < 2:
-        keep[:] = True
-    return (x[keep] - offset, z[keep])
+def _clip_profile(x, z, offset_m: float, length_m: float):
+    """A shape's profile (distance along the shape [m], value) along a trip that starts
+    ``offset_m`` into the shape and runs ``length_m``: from 0 at its first stop."""
+    lo, hi = np.searchsorted(x, [offset_m - 50.0, offset_m + length_m + 50.0])
+    if hi - lo < 2:
+        return (x - offset_m, z)
+    return (x[lo:hi] - offset_m, z[lo:hi])
 
 
 def _with_deadheads(chain, xy, min_layover_s, speed_kmh, detour, deadhead):

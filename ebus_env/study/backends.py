@@ -63,9 +63,14 @@ def run_study(spec: StudySpec, out: str | Path, *, resume: bool = False, use_ray
     from ebus_env.study.runner import forget_batches, run_scenario
 
     # fewer scenarios than threads: each scenario's days are split over the idle threads
-    # (every day is seeded on its own, so a part's rows equal the whole run's)
-    parts = 1 if use_ray or not todo else min(spec.days.count, -(-(
-        workers or default_threads()) // len(todo)))
+    # (every day is seeded on its own, so a part's rows equal the whole run's); a timetable
+    # study's days are Ray's unit of work too (its blocks share chargers: a day is one task)
+    if not todo:
+        parts = 1
+    elif use_ray:
+        parts = spec.days.count if spec.gtfs is not None else 1
+    else:
+        parts = min(spec.days.count, -(-(workers or default_threads()) // len(todo)))
     days = [list(range(spec.days.count))[i::parts] for i in range(parts)]
     got: dict[int, list[dict]] = {}  # rows of the scenarios with days still running
 

@@ -32,6 +32,7 @@ import numpy as np
 from ebus_env.blocks import Block, Charger, drive_rows, plan, where
 from ebus_env.envs.batch import ambient_degc, passengers
 from ebus_env.envs.charging_site import share_plugs
+from ebus_env.errors import ConfigError
 from ebus_env.model.results import battery_energy_j
 from ebus_env.study import depot_plan
 from ebus_env.study.costs import add_costs
@@ -188,6 +189,12 @@ class NetworkStudy:
         from ebus_env.config import load_bus
 
         self.network, self.terminals = network, tuple(terminals)
+        ends = {t.end_stop for b in network.blocks for t in b.trips}
+        unknown = sorted(set(self.terminals) - ends)
+        if unknown:
+            raise ConfigError(f"gtfs.terminals {unknown}: no block of {network.date} lays over "
+                              f"there; stops where blocks lay over include "
+                              f"{', '.join(sorted(ends)[:8])}.")
         self.bus = load_bus(bus)
         self.model = self.bus.build(DT_S)
         self.params = self.model.params.copy()
@@ -385,9 +392,24 @@ def day_draw(spec, day: int) -> dict:
             "passengers_fixed": g.passengers}
 
 
-def network_rows(spec, scenario, days: list[int], workers: int = 2) -> list[dict]:
+def _threads() -> int:
+    """Threads for a day's blocks: one inside a Ray task (it holds one CPU), else every CPU
+    (``$EBUS_THREADS``)."""
+    import sys
+
+    from ebus_env.model.threads import default_threads
+
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized() and \
+            ray.get_runtime_context().worker.mode == ray.WORKER_MODE:
+        return 1
+    return default_threads()
+
+
+def network_rows(spec, scenario, days: list[int], workers: int | None = None) -> list[dict]:
     """The rows of a timetable scenario (an infrastructure option with a depot plan), one
     per day, with costs. A day's physics is shared by the depot plans of one option."""
+    workers = workers or _threads()
     study = network_study(spec)
     infra, costs = scenario.infrastructure, spec.costs
     terminals = len(study.terminals)
