@@ -27,6 +27,10 @@ The same format is written by hand (YAML or JSON, :func:`load_blocks`)::
           - {trip_id: t1, cycle: kc45_out, start: "06:00"}          # stops kc45_A -> kc45_B
           - {trip_id: t2, cycle: kc45_back, start: "06:55"}
           - {trip_id: t3, cycle: sort2, start: "07:50", start_stop: kc45_A, end_stop: kc45_A}
+          - trip_id: t4                                   # or by its timetable
+            stops: [{stop_id: kc45_A, arrival: "08:30", distance_m: 0},
+                    {stop_id: kc45_B, arrival: "09:10", distance_m: 12000}]
+            altitude: [[0, 40.0], [6000, 85.0], [12000, 60.0]]   # optional, [m, m]
 
 and read from GTFS by :mod:`ebus_env.gtfs`. :meth:`Block.profile` gives the block's 10 Hz
 drive as a :class:`~ebus_env.profile.Profile` with the charger channels
@@ -48,6 +52,9 @@ import numpy as np
 
 from ebus_env.errors import ConfigError
 from ebus_env.profile import Profile
+
+__all__ = ["Block", "Charger", "Layover", "StopTime", "Trip", "blocks_from_dict",
+           "blocks_to_dict", "clock", "load_blocks", "seconds"]  # the stable API
 
 DAY_S = 86400.0
 ACCEL_MPS2 = 1.0  # the driver model's acceleration and braking (as ebus_env.routes plans)
@@ -402,7 +409,39 @@ def _charger(data, where: str) -> Charger:
 
 
 TRIP_KEYS = {"trip_id", "route", "start", "end", "start_stop", "end_stop", "cycle",
-             "passengers", "revenue", "distance_m"}
+             "passengers", "revenue", "distance_m", "stops", "altitude", "speed_limit"}
+
+
+def _pairs(value, where: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``[[distance_m, value], ...]`` (increasing distance) as two arrays."""
+    if value is None:
+        return None
+    a = np.asarray(value, float)
+    if a.ndim != 2 or a.shape[1] != 2 or len(a) < 2 or (np.diff(a[:, 0]) < 0).any():
+        raise ConfigError(f"{where}: give [[distance_m, value], ...], at least two rows, "
+                          "distance not decreasing.")
+    return a[:, 0], a[:, 1]
+
+
+def _timetable_trip(data: dict, where: str) -> Trip:
+    """A trip given by its stops (the form :func:`blocks_to_dict` writes for a GTFS trip)."""
+    stops = []
+    for k, stop in enumerate(data["stops"]):
+        if not isinstance(stop, dict) or not {"stop_id", "arrival", "distance_m"} <= set(stop):
+            raise ConfigError(f"{where}.stops[{k}]: give stop_id, arrival, distance_m (and "
+                              "departure when it stands longer).")
+        arrive = seconds(stop["arrival"], f"{where}.stops[{k}].arrival")
+        leave = seconds(stop.get("departure", stop["arrival"]), f"{where}.stops[{k}].departure")
+        stops.append(StopTime(str(stop["stop_id"]), arrive, leave, float(stop["distance_m"])))
+    if len(stops) < 2 or any(b.arrival_s < a.departure_s or b.distance_m < a.distance_m
+                             for a, b in zip(stops[:-1], stops[1:], strict=True)):
+        raise ConfigError(f"{where}.stops: give at least two stops, in time and distance order.")
+    return Trip(str(data["trip_id"]), str(data.get("route", "")), stops[0].departure_s,
+                stops[-1].arrival_s, stops[0].stop_id, stops[-1].stop_id,
+                stops[-1].distance_m - stops[0].distance_m, tuple(stops),
+                altitude=_pairs(data.get("altitude"), f"{where}.altitude"),
+                speed_limit=_pairs(data.get("speed_limit"), f"{where}.speed_limit"),
+                passengers=data.get("passengers"), revenue=bool(data.get("revenue", True)))
 
 
 def _trip(data: dict, where: str) -> Trip:
@@ -413,10 +452,13 @@ def _trip(data: dict, where: str) -> Trip:
     unknown = sorted(set(data) - TRIP_KEYS)
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; known: {sorted(TRIP_KEYS)}.")
+    if "stops" in data and "trip_id" in data:
+        return _timetable_trip(data, where)
     for key in ("trip_id", "cycle", "start"):
         if key not in data:
             raise ConfigError(f"{where}: missing '{key}' (a hand-written trip is a shipped cycle "
-                              "or King County route, e.g. cycle: kc45_out, from a start time).")
+                              "or King County route, e.g. cycle: kc45_out, from a start time; "
+                              "or its stops with times and distances).")
     name = str(data["cycle"])
     try:
         length_m = float(_cycle_rows(name, 0.1)[2][-1])
@@ -435,6 +477,35 @@ def _trip(data: dict, where: str) -> Trip:
                 str(data.get("start_stop", ends[0])), str(data.get("end_stop", ends[1])),
                 float(data.get("distance_m", length_m)), cycle=name,
                 passengers=data.get("passengers"), revenue=bool(data.get("revenue", True)))
+
+
+def blocks_to_dict(blocks: list[Block]) -> dict:
+    """The hand-written form of ``blocks`` (JSON- and YAML-safe; :func:`blocks_from_dict`
+    reads it back): a GTFS block saved for a tool that has no feed."""
+    def trip(t: Trip) -> dict:
+        out = {"trip_id": t.trip_id, "route": t.route}
+        if t.cycle is not None:
+            out.update(cycle=t.cycle, start=t.start_s, end=t.end_s,  # seconds: exact
+                       start_stop=t.start_stop, end_stop=t.end_stop, distance_m=t.distance_m)
+        else:
+            out["stops"] = [{"stop_id": s.stop_id, "arrival": s.arrival_s,
+                             "departure": s.departure_s, "distance_m": s.distance_m}
+                            for s in t.stops]
+            for key in ("altitude", "speed_limit"):
+                if getattr(t, key) is not None:
+                    out[key] = np.column_stack(getattr(t, key)).tolist()
+        if t.passengers is not None:
+            out["passengers"] = float(t.passengers)
+        if not t.revenue:
+            out["revenue"] = False
+        return out
+
+    def charger(c: Charger) -> dict:
+        return {"count": c.count, "power_kw": c.power_kw}
+
+    return {"blocks": [{"block_id": b.block_id, "trips": [trip(t) for t in b.trips],
+                        "chargers": {k: charger(v) for k, v in b.chargers.items()},
+                        **({"depot": charger(b.depot)} if b.depot else {})} for b in blocks]}
 
 
 def blocks_from_dict(data: dict, source: str = "blocks") -> list[Block]:

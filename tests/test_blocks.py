@@ -116,3 +116,27 @@ def test_charging_on_a_layover_raises_the_soc_the_model_predicts():
     more = model.simulate(charged.profile(), soc_start=0.8, record=False).final_state
     soc = model.state_names.index("soc_frac")
     assert more[soc] > plain[soc] + 0.01
+
+
+def test_a_gtfs_like_block_round_trips_through_the_hand_written_form(tmp_path):
+    import json
+
+    from ebus_env.blocks import blocks_to_dict, load_blocks
+
+    times = [6 * 3600.0, 6 * 3600 + 90.0, 6 * 3600 + 200.0]
+    trip = Trip("g1", "R", times[0], times[-1], "S0", "S2", 900.0,
+                tuple(StopTime(f"S{i}", t, t + (30 if i == 1 else 0), d) for i, (t, d) in
+                      enumerate(zip(times, (0.0, 400.0, 900.0), strict=True))),
+                altitude=(np.array([0.0, 900.0]), np.array([10.0, 28.0])))
+    (hand,) = blocks_from_dict(HAND)
+    blocks = [Block("g", (trip,), {"S2": Charger(2, 150.0)}, Charger(4, 100.0)), hand]
+    path = tmp_path / "blocks.json"
+    path.write_text(json.dumps(blocks_to_dict(blocks)))
+    again = load_blocks(path)
+    assert blocks_to_dict(again) == blocks_to_dict(blocks)
+    for a, b in zip(blocks, again, strict=True):
+        np.testing.assert_array_equal(a.profile().stacked(("speed_ref_mps", "grade_frac")),
+                                      b.profile().stacked(("speed_ref_mps", "grade_frac")))
+    with pytest.raises(ConfigError, match=r"stops\[1\]: give stop_id"):
+        blocks_from_dict({"blocks": [{"trips": [{"trip_id": "x", "stops": [
+            {"stop_id": "a", "arrival": "06:00", "distance_m": 0}, {"stop_id": "b"}]}]}]})

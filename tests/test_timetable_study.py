@@ -71,6 +71,7 @@ def test_the_depot_plans_share_the_day_and_the_optimal_one_is_cheapest(rows):
         assert not math.isnan(v["lowest_soc_pct"])
 
 
+@pytest.mark.slow
 def test_the_study_command_writes_the_timetable_report(tmp_path):
     from ebus_env.study.backends import run_study
     from ebus_env.study.summary import write_summary
