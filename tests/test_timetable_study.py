@@ -38,6 +38,10 @@ def test_terminal_chargers_keep_the_blocks_going(rows):
     assert bare["terminal_grid_kwh"] == 0.0 < charged["terminal_grid_kwh"]
     assert charged["lowest_soc_pct"] > bare["lowest_soc_pct"]
     assert charged["trips_not_served"] <= bare["trips_not_served"]
+    # one plug per terminal: used part of the day, some buses wait for it; none: all wait
+    assert 0.0 < charged["charger_utilisation"] <= 1.0
+    assert bare["charger_utilisation"] == 0.0 < bare["charger_wait_bus_h"]
+    assert charged["charger_wait_bus_h"] < bare["charger_wait_bus_h"]
     blocks = {b["block"]: b for b in json.loads(bare["block_results"])}
     more = {b["block"]: b for b in json.loads(charged["block_results"])}
     for name, b in blocks.items():  # block by block: a charger never lowers the lowest SoC

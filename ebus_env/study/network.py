@@ -77,15 +77,17 @@ def _day_rows(mean_degc, amplitude_k, capacity, base, peak, hour0, dt_s, ambient
             people[i] = passengers(capacity, base, peak, hour)
 
 
-def _share_terminals(blocks: list[Block], efficiency: float) -> dict:
+def _share_terminals(blocks: list[Block], efficiency: float) -> tuple[dict, float, float]:
     """Each terminal's plugs shared over the blocks' layovers on a 1-s grid: per block, the
-    (start s, 1-s ratings [W], NaN without a plug) of each terminal it lays over at."""
+    (start s, 1-s ratings [W], NaN without a plug) of each terminal it lays over at; and the
+    bus-seconds on a plug and those that asked for one."""
     visits: dict[str, list] = {}
     for i, block in enumerate(blocks):
         for lay in block.layovers():
             if lay.charger is not None and lay.duration_s > 0:
                 visits.setdefault(lay.stop_id, []).append((i, lay))
     out: dict[int, list] = {}
+    held = wanted = 0.0
     for seen in visits.values():
         charger: Charger = seen[0][1].charger
         t0 = int(math.floor(min(lay.start_s for _, lay in seen)))
@@ -96,11 +98,13 @@ def _share_terminals(blocks: list[Block], efficiency: float) -> dict:
         for i, lay in seen:
             connected[row[i], int(math.ceil(lay.start_s)) - t0:int(math.floor(lay.end_s)) - t0] = 1
         rating = np.where(connected > 0, 1e3 * charger.power_kw, np.nan)
-        _, shared = share_plugs(connected, rating, np.full(len(buses), efficiency),
-                                charger.count)
+        plugged, shared = share_plugs(connected, rating, np.full(len(buses), efficiency),
+                                      charger.count)
+        held += float(plugged.sum())
+        wanted += float(connected.sum())
         for i in buses:
             out.setdefault(i, []).append((t0, shared[row[i]]))
-    return out
+    return out, held, wanted
 
 
 def _one_block(block: Block, model, params, soc_start: float, day: dict, shared: list,
@@ -227,7 +231,7 @@ class NetworkStudy:
         blocks = [replace(b, chargers={k: v for k, v in terminals.items()
                                        if any(t.end_stop == k for t in b.trips)})
                   for b in self.network.blocks]
-        shared = _share_terminals(blocks, self.efficiency)
+        shared, held_s, wanted_s = _share_terminals(blocks, self.efficiency)
         results: list = [None] * len(blocks)
         load_1s = np.zeros(DAY_S)
         lock = threading.Lock()
@@ -243,11 +247,13 @@ class NetworkStudy:
 
         with ThreadPoolExecutor(max(1, workers)) as pool:
             list(pool.map(run, range(len(blocks))))
-        return blocks, results, load_1s
+        return blocks, results, load_1s, (held_s, wanted_s)
 
     def row(self, physics, infra, method: str, costs) -> dict:
         """The day's row under the depot plan ``method`` (before costs)."""
-        blocks, results, terminal_1s = physics
+        blocks, results, terminal_1s, (held_s, wanted_s) = physics
+        plugs = infra.terminal_chargers * len({lay.stop_id for b in blocks
+                                               for lay in b.layovers() if lay.charger})
         steps = int(DAY_S / depot_plan.STEP_S)
         terminal_15 = terminal_1s.reshape(steps, -1).mean(axis=1)
         used = np.array([self.soc_start - r.lowest_soc for r in results])
@@ -288,8 +294,8 @@ class NetworkStudy:
             "buses_not_recharged": int(short.sum()),
             "service_hours_lost": float(sum((b.end_s - r.empty_at_s) / 3600.0
                                             for b, r in stranded)),
-            "charger_utilisation": _terminal_use(blocks, infra),
-            "charger_wait_bus_h": 0.0,
+            "charger_utilisation": held_s / 3600.0 / (plugs * 24.0) if plugs else 0.0,
+            "charger_wait_bus_h": (wanted_s - held_s) / 3600.0,
             "depot_utilisation": float((p.power_kw > 1e-6).sum() * depot_plan.STEP_S / 3600.0
                                        / max(infra.depot_chargers, 1) / 24.0),
             "depot_plan_status": p.status,
@@ -344,15 +350,6 @@ def _clock(t_s: float) -> str:
     from ebus_env.blocks import clock
 
     return clock(t_s)
-
-
-def _terminal_use(blocks, infra) -> float:
-    """Share of the terminal plugs' time on the blocks' charger layovers (upper bound: a
-    layover waiting for a plug counts)."""
-    plugs = infra.terminal_chargers * len({lay.stop_id for b in blocks for lay in b.layovers()
-                                           if lay.charger})
-    hours = sum(lay.duration_s for b in blocks for lay in b.layovers() if lay.charger) / 3600.0
-    return hours / (plugs * 24.0) if plugs else 0.0
 
 
 _STUDIES: dict[str, NetworkStudy] = {}
