@@ -9,13 +9,14 @@ and then every block runs on its own through the model's compiled loop, blocks s
 threads. The blocks of a day are coupled through the chargers: the unit of parallel work
 across processes (Ray) is a day or a scenario, never a block.
 
-Each block starts the day at ``soc_start_pct``. Its SoC is recorded at every row: the lowest,
-when and where, the end SoC, and the first row at which the pack ran empty (at its
-``soc_min_frac`` or short of power): from there on the bus is stranded and its remaining trips
-are not served. The depot then gives each bus what its block needs on the next day plus
-``reserve_soc_pct`` (``E_b = (min(soc_max, used_b + reserve) - soc_end_b) x the pack's kWh per
-unit SoC``), planned by :mod:`ebus_env.study.depot_plan`. Load curves are folded onto one day
-(a trip past 24:00 loads the next morning's hour: the same day repeated).
+Each block starts the day at ``soc_start_pct``. Its SoC is recorded every second: the lowest,
+when and where, the end SoC, and when the pack ran empty away from a charger (the model's
+``stranded_at``: its BMS opened at ``soc_min_frac``): from there on the bus is stranded, its
+day ends there and its remaining trips are not served. The depot then gives each bus what its
+block needs on the next day plus ``reserve_soc_pct`` (``E_b = (min(soc_max, used_b + reserve)
+- soc_end_b) x the pack's kWh per unit SoC``), planned by :mod:`ebus_env.study.depot_plan`.
+Load curves are folded onto one day (a trip past 24:00 loads the next morning's hour: the
+same day repeated).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from ebus_env.units import J_PER_KWH
 
 DT_S = 0.1
 DAY_S = 86400
-RECORD = ("grid_power_w", "soc_frac", "battery_shortfall_w")  # sampled every second
+RECORD = ("grid_power_w", "soc_frac")  # sampled every second
 EVERY = 10  # rows (1 s at 10 Hz)
 COARSE = 100  # rows between evaluations of the day's ambient and passenger load (10 s)
 
@@ -155,22 +156,23 @@ def _one_block(block: Block, model, params, soc_start: float, day: dict, shared:
     trace = np.zeros((1, -(-n // EVERY), len(sel)), np.float32)
     acc = model.run(params[None, :], states, inputs, record_every=EVERY, record_sel=sel,
                     record_out=trace, threads=1)
-    soc_min = params[model.param_names.index("rint_battery.soc_min_frac")] \
-        if "rint_battery.soc_min_frac" in model.param_names else 0.0
-    empty = np.flatnonzero((trace[0, :, 2] > 0.0) | (trace[0, :, 1] <= soc_min + 1e-9))
-    if len(empty):  # the pack ran empty: the bus is stranded there (its day ends)
-        n = int(empty[0]) * EVERY + 1
+    # the pack ran empty away from a charger (the model's stranded_at): the bus is stranded
+    # there and its day ends (the timetable goes on without it)
+    stranded_s = float(acc[0, model.accumulator_names.index("stranded_at")])
+    empty = math.isfinite(stranded_s)
+    if empty:
+        n = min(int(stranded_s / DT_S) + 1, n)
         states = model.initial_state(params, first, soc_start=soc_start)[None, :].copy()
-        trace = trace[:, :int(empty[0]) + 1]
+        trace = trace[:, :-(-n // EVERY)]
         acc = model.run(params[None, :], states, inputs[:, :n], record_every=EVERY,
                         record_sel=sel, record_out=trace, threads=1)
         t = t[:n]
     grid_w, soc = (trace[0, :, j].astype(float) for j in range(2))  # each second
     chem_kwh = float(battery_energy_j(model, acc)[1][0] / J_PER_KWH)
-    empty_at = float(t[-1]) if len(empty) else math.nan
+    empty_at = block.start_s + stranded_s if empty else math.nan
     lowest = int(np.argmin(soc))
     t_1s = t[::EVERY]
-    not_served = [tr.trip_id for tr in block.trips if tr.revenue and len(empty)
+    not_served = [tr.trip_id for tr in block.trips if tr.revenue and empty
                   and tr.end_s > empty_at]
     grid_1s = grid_w / 1e3
     terminal_kwh = float(acc[0, model.accumulator_names.index("grid")] / J_PER_KWH)
