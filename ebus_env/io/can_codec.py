@@ -63,9 +63,9 @@ def raw_values(data: np.ndarray, signal) -> np.ndarray:
         return raw.astype(kind).view(floats).astype(float)
     if signal.is_signed:
         out = raw.astype(np.int64)
-        if signal.length < 64:
-            top = 1 << (signal.length - 1)
-            out = np.where(out >= top, out - (1 << signal.length), out)
+        if signal.length < 64:  # sign extension, (x ^ s) - s, without leaving int64
+            sign = np.int64(1 << (signal.length - 1))
+            out = (out ^ sign) - sign
         return out
     return raw if signal.length == 64 else raw.astype(np.int64)
 
