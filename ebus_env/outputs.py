@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
+import math
 import os
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from ebus_env.errors import ConfigError
@@ -74,6 +76,38 @@ def check_output(path: Path, option: str, suffixes: Iterable[str],
     return path
 
 
+def check_outputs(outputs: Iterable[tuple[Path | None, str, Iterable[str]]],
+                  inputs: Iterable[Path]) -> None:
+    """Check each ``(path, option, suffixes)`` output given (None: not asked for) with
+    :func:`check_output` against the ``inputs``."""
+    inputs = list(inputs)
+    for path, option, suffixes in outputs:
+        if path is not None:
+            check_output(path, option, suffixes, inputs)
+
+
+def output_folder(out: Path, option: str) -> Path:
+    """``out`` as a folder to write into later, refused before the run when it is a file (and
+    not made yet: a run that fails first leaves nothing behind)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{option} {out}: is a file; give a folder (new or existing).")
+    return out
+
+
+def refuse_overwriting(folder: Path, option: str, names: Iterable[str], inputs) -> None:
+    """Refuse, before the run, an output ``folder / name`` that is one of the ``inputs``
+    (paths, or None): writing it would destroy the input."""
+    for source in inputs:
+        if source is None or not Path(source).is_file():
+            continue
+        for name in names:
+            if same_file(Path(folder) / name, Path(source)):
+                raise ConfigError(f"{option} {folder}: the command writes {name} there, which "
+                                  f"is its input {source}. Fix: give another {option}, or "
+                                  "move the input elsewhere.")
+
+
 def check_folder(folder: Path, option: str, inputs: Iterable[Path] = ()) -> Path:
     """Create ``folder`` (and parents) if needed; refuse a file or an unwritable place, and a
     folder that holds an input (an output folder is written into freely)."""
@@ -118,8 +152,32 @@ def _umask() -> int:
     return mask
 
 
+def write_with(path: str | Path, writer: Callable[[Path], object]) -> Path:
+    """Call ``writer(tmp)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    with atomic(path) as tmp:
+        writer(tmp)
+    return Path(path)
+
+
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` through a temporary file; return the path."""
     with atomic(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def _clean(value):
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if hasattr(value, "item"):
+        return _clean(value.item())
+    return value
+
+
+def write_json(data: dict, path: str | Path) -> None:
+    """JSON with NaN/inf written as null."""
+    write_text(path, json.dumps(_clean(data), indent=2) + "\n")
