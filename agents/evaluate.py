@@ -308,3 +308,60 @@ def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SE
     from ebus_env.envs.common import EnvConfig
 
     return ScoreSheet(str(config), seeds, scores, EnvConfig.load(config, **overrides).service_h)
+
+
+def env_files(env, overrides: dict) -> list:
+    """Files an env config reads that an output could overwrite: its YAML and a measured log
+    (None where there is none)."""
+    return [Path(str(env)) if Path(str(env)).suffix else None,
+            overrides.get("log") if isinstance(overrides.get("log"), str | Path) else None]
+
+
+@dataclass
+class Evaluation:
+    """What :func:`evaluate_policies` scored and wrote: the score sheet and its files."""
+
+    sheet: ScoreSheet
+    written: list[Path]
+
+
+def evaluate_policies(policies: list[str], env: str | Path = "sort2_day", episodes: int = 20,
+                      out: str | Path = "runs/evaluate", threads: int = 1,
+                      **overrides) -> Evaluation:
+    """Score policies on the same held-out days and write the sheet (``ebus evaluate``).
+
+    Parameters
+    ----------
+    policies
+        ``rule:NAME`` (baseline, eco_driving, eco_comfort, eco_charging, eco_all),
+        ``ppo:PATH`` or ``ppo:default`` (the shipped agent).
+    env
+        Env config: a name in ``configs/env`` or a YAML path.
+    episodes
+        Held-out days (seeds ``HELD_OUT_SEED``, ``HELD_OUT_SEED + 1``, ...).
+    out
+        Folder for ``scores.json``, ``scores_per_day.csv`` and ``day.png``; refused before
+        the run when it is a file or a file there is an input.
+    threads
+        Torch threads for a PPO policy's network.
+    **overrides
+        Env config keys to override (``log="day.csv"``).
+
+    Returns
+    -------
+    Evaluation
+        The :class:`ScoreSheet` and the files written.
+    """
+    from agents.ppo import load_policy
+    from ebus_env.errors import ConfigError
+    from ebus_env.outputs import output_folder, refuse_overwriting
+
+    if episodes < 1:
+        raise ConfigError(f"--episodes {episodes}: needs at least 1 held-out day.")
+    folder = output_folder(Path(out), "--out")
+    policy_files = [Path(spec.partition(":")[2]) for spec in policies
+                    if spec.startswith("ppo:") and spec != "ppo:default"]
+    refuse_overwriting(folder, "--out", OUTPUTS, env_files(env, overrides) + policy_files)
+    sheet = evaluate([load_policy(spec, threads) for spec in policies], env, episodes=episodes,
+                     **overrides)
+    return Evaluation(sheet, sheet.write(folder))

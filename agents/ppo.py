@@ -317,6 +317,46 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
     return out
 
 
+def train_agent(config: str | Path | None = None, out: str | Path = "runs/ppo", *,
+                steps: int | None = None, seed: int | None = None,
+                time_limit_min: float | None = None, threads: int | None = None) -> dict:
+    """Train PPO from a config file with the command's overrides (``ebus train``).
+
+    The config, its env and every output path are checked before anything is built: an
+    output folder that is a file, or a file there that is one of the inputs, is refused.
+
+    Parameters
+    ----------
+    config
+        PPO config: a name in ``configs/agents`` or a YAML path (default ``ppo``).
+    out
+        Folder for the agent (``model.zip``, ``vecnormalize.pkl``), checkpoints, the curve
+        and ``training.json``.
+    steps, seed, time_limit_min, threads
+        Override the config's ``total_steps``, ``seed``, ``time_limit_min`` [min] and
+        ``torch_threads``.
+
+    Returns
+    -------
+    dict
+        ``training.json``: steps asked and done, wall time, whether the time limit ended it;
+        and ``folder``, the output folder.
+    """
+    from agents.evaluate import env_files
+    from ebus_env.outputs import output_folder, refuse_overwriting
+
+    overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed),
+                                   ("time_limit_min", time_limit_min),
+                                   ("torch_threads", threads)) if v is not None}
+    cfg = PPOConfig.load(config, **overrides)
+    cfg.env_config()  # a bad env name or override: refused before --out is made
+    folder = output_folder(Path(out), "--out")
+    refuse_overwriting(folder, "--out", OUTPUTS, [config, *env_files(cfg.env, cfg.env_overrides)])
+    require_rl()
+    path = train(cfg, folder, progress=False)
+    return {**json.loads((path / "training.json").read_text()), "folder": path}
+
+
 class PPOPolicy:
     """A trained agent (``model.zip`` and, if trained with it, ``vecnormalize.pkl``) with
     ``predict(obs, deterministic=True)`` on raw observations; torch runs on ``torch_threads``

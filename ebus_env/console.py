@@ -1,12 +1,11 @@
-"""Summaries for people (a table) and for programs (JSON)."""
+"""Summaries for people (tables, and what each command prints of its result) and for programs
+(JSON)."""
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
-from ebus_env.outputs import write_text
+from ebus_env.outputs import write_json  # noqa: F401  (here too: summaries for programs)
 from ebus_env.units import shown_unit
 
 TERM_LABELS = {  # the model's own energy terms; an effect's term takes the effect's label
@@ -88,23 +87,6 @@ def _nan(value) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
 
-def _clean(value):
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if hasattr(value, "item"):
-        return _clean(value.item())
-    return value
-
-
-def write_json(data: dict, path: str | Path) -> None:
-    """JSON with NaN/inf written as null."""
-    write_text(path, json.dumps(_clean(data), indent=2) + "\n")
-
-
 FIT_ROWS = [
     ("nrmse", "NRMSE (paper eq. 1)", "1", 4),
     ("rmse_pct", "RMSE", "%-pts SoC", 3),
@@ -150,3 +132,120 @@ def calibration_tables(result):
             row.append(f"{result.validation.get(key, float('nan')):.{digits}f}")
         fit.add_row(*row, shown_unit(unit))
     return params, fit
+
+
+def print_simulation(done, console) -> None:
+    """What ``ebus simulate`` prints of a :class:`~ebus_env.simulate.Simulation`: the figures,
+    the energy breakdown, the timings, and the files written."""
+    summary = done.summary
+    for table in summary_tables(summary, done.title):
+        console.print(table)
+    console.print(f"[dim]model built and loaded in {done.setup_s:.2f} s (compile/cache "
+                  f"{done.compile_s:.2f} s); simulated in {1e3 * summary['wall_time_s']:.1f} "
+                  "ms[/]", highlight=False)
+    if done.json_path:
+        console.print(f"summary -> {done.json_path}")
+    if done.trace_path:
+        rows, columns = done.trace_shape
+        console.print(f"trace ({rows} rows x {columns} signals) -> {done.trace_path}")
+    if done.plot_path:
+        if len(done.run.results) > 1:
+            console.print("[yellow]plot shows the first segment only[/]")
+        console.print(f"plot -> {done.plot_path}")
+
+
+def print_calibration(done, console) -> None:
+    """What ``ebus calibrate`` prints of a
+    :class:`~ebus_env.calibration.calibrate_logs.LogCalibration`: the fit's notes, the
+    fitted parameters, the fit, and the files written."""
+    result = done.result
+    for line in result.notes:
+        console.print(f"[yellow]note:[/] {line}", highlight=False)
+    for line in result.warnings:
+        console.print(f"[yellow]warning:[/] {line}", highlight=False)
+    for table in calibration_tables(result):
+        console.print(table)
+    console.print(f"[dim]{result.method}: {result.evaluations} evaluations, "
+                  f"{result.simulated_steps / 1e6:.1f} M bus-steps, {result.wall_time_s:.1f} s[/]",
+                  highlight=False)
+    if result.interrupted:
+        console.print("[bold yellow]Interrupted: the values above are the best found so far.[/]")
+    if done.overlay:
+        console.print(f"overlay -> {done.overlay}  ({done.overlay_command})")
+    if done.json_path:
+        console.print(f"results -> {done.json_path}")
+    if done.plots:
+        console.print(f"plots -> {', '.join(map(str, done.plots))}")
+    if done.history:
+        console.print(f"history -> {done.history}")
+
+
+def print_diagnosis(done, console) -> None:
+    """What ``ebus diagnose`` prints of a
+    :class:`~ebus_env.diagnostics.diagnose_logs.LogDiagnosis`: the report's tables, its
+    sentence and notes, and the files written."""
+    from ebus_env.diagnostics.report import console_tables
+
+    result = done.result
+    for table in console_tables(result):
+        console.print(table)
+    style = "bold green" if result.verdict else "bold"
+    console.print(f"[{style}]{result.sentence}[/]", highlight=False)
+    for note in (result.pack_note, result.decide_note):
+        if note:
+            console.print(note, highlight=False)
+    if result.caution:
+        console.print(f"[yellow]{result.caution}[/]", highlight=False)
+    console.print(f"[dim]{result.timings['total_s']:.1f} s[/]", highlight=False)
+    if done.html:
+        console.print(f"report -> {done.html}")
+    if done.json_path:
+        console.print(f"results -> {done.json_path}")
+
+
+def cycles_table():
+    """The shipped driving cycles as a rich table (``ebus cycles``)."""
+    from rich.table import Table
+
+    from ebus_env.cycles import CYCLES, load_cycle
+
+    table = Table(title="driving cycles (data/cycles)")
+    table.add_column("name", no_wrap=True, overflow="fold")  # a name is typed: never cut
+    for col in ("duration s", "distance km", "mean km/h", "max km/h", "description"):
+        table.add_column(col)
+    for name in CYCLES:
+        c = load_cycle(name)
+        table.add_row(name, f"{c.duration_s:.0f}", f"{c.distance_km:.2f}",
+                      f"{c.mean_speed_kmh:.1f}", f"{c.speed_kmh.max():.1f}", c.description)
+    return table
+
+
+def print_effects(console, bus: str | None = None, with_=()) -> None:
+    """The registered effects with their parameters: default (or ``bus``'s value with the
+    effects ``with_`` added), unit, bounds, meaning (``ebus effects``)."""
+    from rich.markup import escape
+
+    from ebus_env.bus_choice import split_names
+    from ebus_env.config import load_bus, resolve_effect
+    from ebus_env.effects.base import registered_effects
+
+    for item in split_names(with_):
+        resolve_effect(item)
+    values, in_model = {}, None
+    if bus:
+        model = load_bus(bus, with_=split_names(with_)).build()
+        values = dict(zip(model.param_names, model.params, strict=True))
+        in_model = {e.name for e in model.effects}
+    console.print(f"[bold]effects{f' of bus {bus}' if bus else ''}[/]  (parameter, value, "
+                  "unit, bounds, meaning)")
+    for name, eff in sorted(registered_effects().items(), key=lambda kv: (kv[1].role, kv[0])):
+        if in_model is not None and name not in in_model:
+            continue
+        summary = escape((eff.doc or "").strip().split("\n")[0])
+        console.print(f"\n[bold cyan]{name}[/]  [dim]{eff.role}[/]  {summary}",
+                      soft_wrap=True, highlight=False)
+        for p in eff.params:
+            value = values.get(f"{name}.{p.name}", p.default)
+            console.print(f"    {p.name:30s} {value:>10g} {p.unit:8s} "
+                          f"[{p.bounds[0]:g}, {p.bounds[1]:g}]  {p.description}",
+                          soft_wrap=True, highlight=False, markup=False)

@@ -15,10 +15,11 @@ from pathlib import Path
 
 from ebus_env import paths
 from ebus_env.config import load_bus
-from ebus_env.console import FIGURES, breakdown_label, write_json
+from ebus_env.console import FIGURES, breakdown_label
 from ebus_env.cycles import service_day
 from ebus_env.html_report import Figure, Section, Table, write_report
 from ebus_env.io.measured import load_log
+from ebus_env.outputs import write_json
 from ebus_env.simulate import run_profiles
 from ebus_env.units import shown_unit, with_unit
 
@@ -92,12 +93,28 @@ def _diagnosis_sections(out: Path, numbers: dict, say) -> list[Section]:
     return sections
 
 
-def run_demo(out: Path, console=None) -> Path:
-    """Run the demo and write ``out/index.html`` and ``out/summary.json``."""
+def run_demo(out: str | Path = "report", console=None) -> Path:
+    """Run the demo (``ebus demo``) and write ``out/index.html`` and ``out/summary.json``.
+
+    Parameters
+    ----------
+    out
+        The report's folder: made if needed, refused when it holds a log the demo reads.
+    console
+        A rich Console told what each part found (None: ``print``).
+
+    Returns
+    -------
+    Path
+        The HTML report.
+    """
+    from ebus_env.diagnostics.hidden import OUT_DIR
+    from ebus_env.outputs import check_folder
     from ebus_env.plotting import plot_trace
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    # not into the folders of the logs it reads: a report is no shipped data
+    out = check_folder(Path(out), "--out", inputs=[*BMW_DIR.glob("*.csv"),
+                                                  *OUT_DIR.glob("*.csv.gz")])
     say = console.print if console else print
     sections, numbers = [], {}
     for name in ("12m", "18m"):

@@ -54,3 +54,8 @@ def load_calibration_config(name: str | Path | None = None) -> CalibrationConfig
         polish_starts=int(data.get("polish_starts", 4)),
         windows=_dataclass_from(WindowSettings, data.get("windows") or {}, f"{path}: windows"),
     )
+
+
+def calibration_config_file(name: str | Path | None) -> Path | None:
+    """The file of the calibration config ``name`` (None: the defaults, no file)."""
+    return None if name is None else find_config(name, kind="calibration")

@@ -21,10 +21,12 @@ effect is missing, add it and watch the error fall.
    (the paper's parameters, the bus-to-bus ones and the effect's strength free together), on
    calibration and held-out blocks.
 
-:func:`diagnose` runs them all; :mod:`~ebus_env.diagnostics.report` writes the console, JSON
-and HTML report; :mod:`~ebus_env.diagnostics.hidden` makes service days with a hidden effect.
+:func:`diagnose` runs them all (:func:`diagnose_logs` on log files, as ``ebus diagnose``);
+:mod:`~ebus_env.diagnostics.report` writes the console, JSON and HTML report;
+:mod:`~ebus_env.diagnostics.hidden` makes service days with a hidden effect.
 """
 
 from ebus_env.diagnostics.diagnose import Diagnosis, diagnose
+from ebus_env.diagnostics.diagnose_logs import LogDiagnosis, diagnose_logs
 
-__all__ = ["Diagnosis", "diagnose"]
+__all__ = ["Diagnosis", "LogDiagnosis", "diagnose", "diagnose_logs"]

@@ -89,17 +89,53 @@ def flag_outliers(table: pd.DataFrame, params: list[str]) -> pd.DataFrame:
     return table
 
 
-def calibrate_fleet(logs_dir: str | Path, bus: str, out: str | Path, *, columns: str | None = None,
-                    free: list[str] | None = None, seed: int = 0, population: int | None = None,
+def calibrate_fleet(logs_dir: str | Path, bus: str = "12m", out: str | Path = "fleet_params.csv",
+                    *, columns: str | None = None, free: str | list[str] | None = None,
+                    seed: int = 0, population: int | None = None,
                     iterations: int | None = None, use_ray: bool = False,
                     address: str | None = None, workers: int | None = None,
                     say=print) -> pd.DataFrame:
     """Calibrate every log of ``logs_dir`` on its own and write the per-log parameter table
-    to ``out`` (CSV, or Parquet by its suffix). In this process the logs run one after the
-    other (each calibration already uses every core); on Ray one task per log."""
+    to ``out`` (``ebus calibrate --fleet``).
+
+    In this process the logs run one after the other (each calibration already uses every
+    core); on Ray one task per log.
+
+    Parameters
+    ----------
+    logs_dir
+        The folder of bus-day logs (``*.csv``, ``*.csv.gz``, ``*.parquet``).
+    bus
+        Bus config name or path.
+    out
+        The table: CSV, or Parquet by its suffix; refused inside ``logs_dir``.
+    columns
+        Column map preset of the logs.
+    free
+        Free parameters by qualified name (a list or comma list; default: the paper's).
+    seed, population, iterations
+        iSOPT's seed, population and iterations.
+    use_ray, address
+        One Ray task per log: a local runtime, or the cluster at ``host:port`` (which
+        implies ``use_ray``).
+    workers
+        CPUs of a local Ray runtime.
+    say
+        Told each log's fit as it finishes.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per log: NRMSE, fitted values, which the log determines, robust z-scores and
+        the outliers.
+    """
+    from ebus_env.bus_choice import split_names
     from ebus_env.inputs import check
     from ebus_env.outputs import TABLE_SUFFIXES, check_folder, check_output
     from ebus_env.study.backends import map_tasks
+
+    free = split_names([free] if isinstance(free, str) else free) or None
+    use_ray = use_ray or address is not None
 
     for name, value in (("population", population), ("iterations", iterations)):
         if value is not None:
@@ -129,18 +165,12 @@ def calibrate_fleet(logs_dir: str | Path, bus: str, out: str | Path, *, columns:
     return table
 
 
-def fleet_command(logs_dir: Path, bus: str, columns: str | None, params: str | None, seed: int,
-                  population: int | None, iterations: int | None, use_ray: bool,
-                  address: str | None, out: Path | None, console) -> None:
-    """``ebus calibrate --fleet``: run, print the table, say where it went."""
+def print_fleet(table: pd.DataFrame, bus: str, out: str | Path, console) -> None:
+    """What ``ebus calibrate --fleet`` prints of the table :func:`calibrate_fleet` wrote: the
+    fitted values by log (? where the log does not determine one) with the outliers, and
+    where it went."""
     from rich.table import Table
 
-    out = out or Path("fleet_params.csv")
-    free = [p.strip() for p in params.split(",")] if params else None
-    table = calibrate_fleet(logs_dir, bus, out, columns=columns, free=free, seed=seed,
-                            population=population, iterations=iterations,
-                            use_ray=use_ray or address is not None, address=address,
-                            say=lambda line: console.print(line, highlight=False))
     names = [c for c in table.columns if "." in c and " " not in c]
     view = Table(title=f"fleet calibration of {bus}: fitted values (?: not determined by the "
                  f"log; outliers: robust |z| > {Z_LIMIT:g})", title_justify="left")
