@@ -3,16 +3,18 @@
 The arrow points down: ``ebus_env`` never imports ``agents``. Its CLI loads every function
 registered in the entry-point group ``ebus_env.commands`` (this package's ``pyproject.toml``
 names :func:`register` there) and calls it with the app, so installing ``agents`` next to
-``ebus_env`` adds the commands.
+``ebus_env`` adds the commands. Each command parses its options and calls one function:
+:func:`agents.evaluate.evaluate_policies`, :func:`agents.ppo.train_agent`.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from ebus_env.cli_options import console, run_command
 
 ThreadsOpt = Annotated[int, typer.Option(
     "--threads", min=1, help="Torch threads for the policy network (1 suits small MLPs)")]
@@ -24,21 +26,8 @@ def register(app: typer.Typer) -> None:
     app.command()(train)
 
 
-def _run(body) -> None:
-    """The app's way to run a command body: errors as one line, exit code 2. Imported at
-    call time, as ``ebus_env.cli`` imports this module while it loads."""
-    from ebus_env.cli import _run as run
-
-    run(body)
-
-
-def _console():
-    from ebus_env.cli import _console as console
-
-    return console()
-
-
 def _env_overrides(items: list[str] | None) -> dict:
+    """``key=value`` items of ``--set`` as env config overrides (values read as YAML)."""
     import yaml
 
     from ebus_env.errors import ConfigError
@@ -53,38 +42,6 @@ def _env_overrides(items: list[str] | None) -> dict:
         except yaml.YAMLError:
             raise ConfigError(f"--set {key}: '{value}' is not a value.") from None
     return out
-
-
-def _output_folder(out: Path, option: str) -> Path:
-    """``out`` as a folder to write into, refused before the run when it is a file."""
-    from ebus_env.errors import ConfigError
-
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{option} {out}: is a file; give a folder (new or existing).")
-    return out
-
-
-def _refuse_overwriting_inputs(folder: Path, option: str, names, inputs) -> None:
-    """Refuse, before the run, an output ``folder / name`` that is one of the ``inputs``
-    (paths, or None): writing it would destroy the input."""
-    from ebus_env.errors import ConfigError
-    from ebus_env.outputs import same_file
-
-    for source in inputs:
-        if source is None or not Path(source).is_file():
-            continue
-        for name in names:
-            if same_file(folder / name, Path(source)):
-                raise ConfigError(f"{option} {folder}: the command writes {name} there, which "
-                                  f"is its input {source}. Fix: give another {option}, or "
-                                  "move the input elsewhere.")
-
-
-def _env_inputs(env, overrides: dict) -> list:
-    """Files an env config reads that an output could overwrite: its YAML and a measured
-    log."""
-    return [Path(str(env)) if Path(str(env)).suffix else None,
-            overrides.get("log") if isinstance(overrides.get("log"), str | Path) else None]
 
 
 def evaluate(
@@ -103,27 +60,15 @@ def evaluate(
     """Score policies on the same held-out days: energy, grid load, comfort, delay."""
 
     def body():
-        from agents.evaluate import OUTPUTS, print_sheet
-        from agents.evaluate import evaluate as run
-        from agents.ppo import load_policy
-        from ebus_env.errors import ConfigError
+        from agents.evaluate import evaluate_policies, print_sheet
 
-        if episodes < 1:
-            raise ConfigError(f"--episodes {episodes}: needs at least 1 held-out day.")
-        folder = _output_folder(out, "--out")
-        overrides = _env_overrides(set_)
-        policy_files = [Path(spec.partition(":")[2]) for spec in policy
-                        if spec.startswith("ppo:") and spec != "ppo:default"]
-        _refuse_overwriting_inputs(folder, "--out", OUTPUTS,
-                                   _env_inputs(env, overrides) + policy_files)
-        console = _console()
-        sheet = run([load_policy(spec, threads) for spec in policy], env, episodes=episodes,
-                    **overrides)
-        print_sheet(sheet, console)
-        for path in sheet.write(folder):
-            console.print(f"[bold green]->[/] {path}")
+        done = evaluate_policies(policy, env, episodes, out, threads, **_env_overrides(set_))
+        shown = console()
+        print_sheet(done.sheet, shown)
+        for path in done.written:
+            shown.print(f"[bold green]->[/] {path}")
 
-    _run(body)
+    run_command(body)
 
 
 def train(
@@ -143,22 +88,12 @@ def train(
     """Train PPO on EBus-v0's native vector env (stable-baselines3)."""
 
     def body():
-        from agents.ppo import OUTPUTS, PPOConfig, require_rl
-        from agents.ppo import train as run
+        from agents.ppo import train_agent
 
-        overrides = {k: v for k, v in (("total_steps", steps), ("seed", seed),
-                                       ("time_limit_min", time_limit_min),
-                                       ("torch_threads", threads)) if v is not None}
-        cfg = PPOConfig.load(config, **overrides)
-        cfg.env_config()  # a bad env name or override: refused before --out is made
-        folder = _output_folder(out, "--out")
-        _refuse_overwriting_inputs(folder, "--out", OUTPUTS,
-                                   [config, *_env_inputs(cfg.env, cfg.env_overrides)])
-        require_rl()
-        path = run(cfg, folder, progress=False)
-        done = json.loads((path / "training.json").read_text())
+        done = train_agent(config, out, steps=steps, seed=seed, time_limit_min=time_limit_min,
+                           threads=threads)
         limit = " (time limit reached)" if done["stopped_by_time_limit"] else ""
-        _console().print(f"[bold green]agent ->[/] {path / 'model.zip'} ({done['steps']:,} "
-                         f"steps in {done['wall_s']:.0f} s{limit})")
+        console().print(f"[bold green]agent ->[/] {done['folder'] / 'model.zip'} "
+                        f"({done['steps']:,} steps in {done['wall_s']:.0f} s{limit})")
 
-    _run(body)
+    run_command(body)

@@ -191,7 +191,7 @@ def print_diagnosis(done, console) -> None:
         console.print(table)
     style = "bold green" if result.verdict else "bold"
     console.print(f"[{style}]{result.sentence}[/]", highlight=False)
-    for note in (result.pack_note, result.decide_note):
+    for note in (result.pack_note, result.unmet_note, result.decide_note):
         if note:
             console.print(note, highlight=False)
     if result.caution:

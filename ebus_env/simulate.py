@@ -266,11 +266,11 @@ def simulate_bus(bus: str | Path | BusChoice = "12m", *, cycle: str | None = Non
         _say(console, f"[yellow]note:[/] the log has no SoC: the battery started at "
              f"{summary['soc_start_pct']:.1f} %, the model's initial state; set it "
              "with --soc-start-pct", soft_wrap=True)
-    if summary["soc_min_pct"] < 0.0:  # the loads drew on after traction stopped at empty
-        _say(console, f"[yellow]warning:[/] the pack ran empty: its SoC fell to "
-             f"{summary['soc_min_pct']:.1f} %, the auxiliaries and the cabin drawing on "
-             "after the drive stopped; the figures past that point are not a bus's. "
-             "Start fuller (--soc-start-pct) or charge more.", soft_wrap=True)
+    if "stranded_at_h" in summary:  # the BMS opened an empty pack away from a charger
+        _say(console, f"[yellow]warning:[/] the pack ran empty {summary['stranded_at_h']:.2f} h "
+             f"into the run, at {summary['stranded_at_km']:.2f} km: the BMS opened it "
+             f"and the bus stood {summary['stranded_h']:.2f} h, its loads off. Start "
+             "fuller (--soc-start-pct) or charge more.", soft_wrap=True)
     summary["compile_or_load_s"] = compile_s
     done = Simulation(config, run, setup_s, compile_s, json_path, out, plot)
     if json_path:

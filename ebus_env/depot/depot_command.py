@@ -1,8 +1,8 @@
 """``ebus depot FOLDER --map loggers.csv --bus 12m --out report/``: a depot's folder of CAN
 logger files to the buses that need a workshop visit (:func:`ebus_env.depot.depot_run.run_depot`).
 
-``register(app, run)`` adds the command to the ``ebus`` typer app; ``run`` is the command
-line's runner (prints user errors without a traceback)."""
+``register(app)`` adds the command to the ``ebus`` typer app (``ebus_env.cli`` names this module
+in its ``COMMAND_MODULES``)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,10 @@ from typing import Annotated
 
 import typer
 
+from ebus_env.cli_options import run_command
 
-def register(app: typer.Typer, run) -> None:
+
+def register(app: typer.Typer) -> None:
     """Add ``ebus depot`` to ``app``."""
 
     @app.command()
@@ -94,4 +96,4 @@ def register(app: typer.Typer, run) -> None:
             console.print(f"summary -> {result.summary}\nreport -> {result.html}",
                           highlight=False)
 
-        run(body)
+        run_command(body)
