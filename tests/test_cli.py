@@ -254,3 +254,94 @@ def test_diagnose_holds_a_known_value_of_an_effect_it_adds(tmp_path):
     assert explained[1.5] > explained[2.0] + 0.1, explained
     code, out = invoke("diagnose", log, "--add", effect, "--set", "door_compressor.run_per_opn_s=1")
     assert code != 0 and name in out
+
+
+# -- the command line stays a thin layer over the library ---------------------------------------
+def test_the_command_line_stays_thin_and_starts_light():
+    """cli.py parses options and calls library functions: under 400 lines, and importing it
+    (what `ebus --help` does) loads neither the model, numba nor pandas."""
+    import subprocess
+    import sys
+
+    assert len((ROOT / "ebus_env" / "cli.py").read_text().splitlines()) < 400
+    loaded = subprocess.run(
+        [sys.executable, "-c", "import sys, ebus_env.cli; print(' '.join(sorted(sys.modules)))"],
+        capture_output=True, text=True, check=True).stdout.split()
+    heavy = [m for m in loaded if m.split(".")[0] in ("numba", "pandas", "matplotlib", "scipy")
+             or m.startswith(("ebus_env.model", "ebus_env.config", "ebus_env.simulate"))]
+    assert heavy == [] and "ebus_env.cli_options" in loaded
+
+
+def test_a_command_module_registers_its_commands(monkeypatch):
+    """A module named in COMMAND_MODULES adds its commands through register(app), and they run
+    the way every command runs: an error as one line, exit code 2."""
+    import sys
+    import types
+
+    import typer
+
+    from ebus_env import cli
+    from ebus_env.cli_options import run_command
+    from ebus_env.errors import ConfigError
+
+    def hello(name: str = "bus"):
+        def body():
+            if name == "nobody":
+                raise ConfigError("--name nobody: give a name.")
+            typer.echo(f"hello {name}")
+
+        run_command(body)
+
+    module = types.ModuleType("fake_commands")
+    module.register = lambda app: app.command()(hello)
+    monkeypatch.setitem(sys.modules, "fake_commands", module)
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ("fake_commands",))
+    monkeypatch.setattr(cli, "app", typer.Typer())
+    cli._add_commands()
+    result = runner.invoke(cli.app, ["hello", "--name", "depot"])
+    assert result.exit_code == 0 and "hello depot" in result.output
+    assert {"hello", "evaluate", "train"} <= {c.name or c.callback.__name__
+                                              for c in cli.app.registered_commands}
+    result = runner.invoke(cli.app, ["hello", "--name", "nobody"])
+    assert result.exit_code == 2 and "error: --name nobody: give a name." in result.output
+
+
+def test_each_command_is_its_python_function(tmp_path):
+    """`ebus simulate` and simulate_bus give the same day; `ebus calibrate` and calibrate_logs
+    the same fit and overlay; both write the same files."""
+    from ebus_env.bus_choice import BusChoice
+    from ebus_env.calibration import calibrate_logs
+    from ebus_env.simulate import simulate_bus
+
+    code, out = invoke("simulate", "--cycle", "sort3", "--hours", "0.5", "--without",
+                       "cabin_hvac", "--set", "aero_drag.drag_coef=0.6", "--json",
+                       tmp_path / "cli.json")
+    assert code == 0, out
+    day = simulate_bus(BusChoice("12m", without=["cabin_hvac"]), cycle="sort3", hours=0.5,
+                       params={"aero_drag.drag_coef": 0.6}, json_path=tmp_path / "api.json")
+    timing = ("wall_time_s", "compile_or_load_s")
+    cli_day, api_day = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("cli", "api"))
+    assert {k: v for k, v in cli_day.items() if k not in timing} == \
+        {k: v for k, v in api_day.items() if k not in timing}
+    assert day.summary["kwh_per_km"] == pytest.approx(cli_day["kwh_per_km"], rel=1e-12)
+    assert "cabin_hvac" not in day.summary["breakdown_kwh"] and day.title.startswith("12m on")
+
+    log = ROOT / "data/measured/bmw_i3_tum/TripB03_1hz.csv"
+    quick = ("--params", "passenger_load.load_frac,auxiliaries.base_power_w", "--population",
+             5, "--iterations", 3)
+    code, out = invoke("calibrate", log, "--bus", "bmw_i3", "--columns", "bmw_i3_tum", *quick,
+                       "--out", tmp_path / "cli.yaml")
+    assert code == 0, out
+    fit = calibrate_logs([log], "bmw_i3", free="passenger_load.load_frac,auxiliaries.base_power_w",
+                         population=5, iterations=3, reading=_reading("bmw_i3_tum"),
+                         out=tmp_path / "api.yaml")
+    assert fit.overlay == tmp_path / "api.yaml" and fit.plots == [] and fit.json_path is None
+    cli_yaml = (tmp_path / "cli.yaml").read_text().replace(str(tmp_path / "cli.yaml"), "OUT")
+    api_yaml = (tmp_path / "api.yaml").read_text().replace(str(tmp_path / "api.yaml"), "OUT")
+    assert cli_yaml == api_yaml and "auxiliaries" in api_yaml
+
+
+def _reading(columns):
+    from ebus_env.io.log_reading import LogReading
+
+    return LogReading(columns=columns)
