@@ -44,6 +44,12 @@ _EXPORTS = {
     "service_day": "ebus_env.cycles",
     "load_log": "ebus_env.io.measured",
     "plot_trace": "ebus_env.plotting",
+    # the commands as functions: each does its command's whole work
+    "BusChoice": "ebus_env.bus_choice",
+    "LogReading": "ebus_env.io.log_reading",
+    "simulate_bus": "ebus_env.simulate",
+    "calibrate_logs": "ebus_env.calibration.calibrate_logs",
+    "diagnose_logs": "ebus_env.diagnostics.diagnose_logs",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from ebus_env.cycles import service_day
 from ebus_env.errors import ConfigError
 from ebus_env.inputs import check
 from ebus_env.io.log_reading import LogReading
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 _ADDITIVE = ("distance_km", "duration_h", "battery_energy_kwh", "consumed_energy_kwh",
              "grid_energy_kwh", "charging_time_h", "wall_time_s", "battery_shortfall_kwh",
@@ -153,7 +157,8 @@ def simulate_bus(bus: str | Path | BusChoice = "12m", *, cycle: str | None = Non
                  soc_start_pct: float | None = None, load: str | float | None = None,
                  params: dict[str, float] | None = None, reading: LogReading | None = None,
                  dt_s: float = 0.1, out: str | Path | None = None, plot: str | Path | None = None,
-                 json_path: str | Path | None = None, console=None) -> Simulation:
+                 json_path: str | Path | None = None,
+                 console: Console | None = None) -> Simulation:
     """Run a bus through a cycle day or a measured log, and write its trace, plot and figures
     (``ebus simulate``).
 
@@ -288,6 +293,6 @@ def simulate_bus(bus: str | Path | BusChoice = "12m", *, cycle: str | None = Non
     return done
 
 
-def _say(console, text: str, soft_wrap: bool = False) -> None:
+def _say(console: Console | None, text: str, soft_wrap: bool = False) -> None:
     if console is not None:
         console.print(text, highlight=False, soft_wrap=soft_wrap)

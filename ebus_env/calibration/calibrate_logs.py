@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ebus_env.bus_choice import BusChoice, input_files, split_names
 from ebus_env.calibration.calibrate import CalibrationResult, calibrate
@@ -21,6 +22,9 @@ from ebus_env.outputs import (
     write_json,
     write_with,
 )
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 @dataclass
@@ -58,7 +62,7 @@ def calibrate_logs(logs, bus: str | Path | BusChoice = "12m", *, validate=(),
                    sparse: bool = False, sparse_cycle: str = "sort2",
                    out: str | Path | None = None, json_path: str | Path | None = None,
                    plot: str | Path | None = None, history: str | Path | None = None,
-                   console=None) -> LogCalibration:
+                   console: Console | None = None) -> LogCalibration:
     """Fit a bus's uncertain parameters to the SoC of measured logs and write the results
     (``ebus calibrate``).
 
@@ -185,7 +189,7 @@ def calibrate_logs(logs, bus: str | Path | BusChoice = "12m", *, validate=(),
 
 
 @contextlib.contextmanager
-def _progress_bar(console, title: str, total: int | None):
+def _progress_bar(console: Console | None, title: str, total: int | None):
     """A progress callback ``(iteration, best cost, evaluations)`` drawing a bar on
     ``console`` (None: no bar, no callback)."""
     if console is None:

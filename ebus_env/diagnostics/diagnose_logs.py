@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ebus_env.bus_choice import BusChoice, input_files, split_names
 from ebus_env.calibration.settings import calibration_config_file, load_calibration_config
@@ -17,6 +18,9 @@ from ebus_env.errors import LogError
 from ebus_env.inputs import check
 from ebus_env.io.log_reading import LogReading, refuse_same_log, refuse_twice
 from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, check_outputs, write_with
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 @dataclass
@@ -34,7 +38,8 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
                   window_s: float | None = None, soc_only: bool = False,
                   config: str | Path | None = None, seed: int = 0,
                   reading: LogReading | None = None, html: str | Path | None = None,
-                  json_path: str | Path | None = None, console=None) -> LogDiagnosis:
+                  json_path: str | Path | None = None,
+                  console: Console | None = None) -> LogDiagnosis:
     """Where the model fails against measured logs, and which effect is missing
     (``ebus diagnose``): :func:`~ebus_env.diagnostics.diagnose` on the logs read from files,
     its report written.
@@ -128,7 +133,7 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
 
 
 @contextlib.contextmanager
-def _status(console):
+def _status(console: Console | None):
     """The stage running on ``console``'s status line, as a callback (None: no callback)."""
     if console is None:
         yield None

@@ -7,10 +7,14 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ebus_env.errors import ConfigError
 from ebus_env.io.measured import load_log
 from ebus_env.outputs import same_bytes, same_file
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 MAX_ACCEL_MPS2 = 4.0
 """Steps of a log that accelerate faster than this are reported by the loader: the model cannot
@@ -61,7 +65,8 @@ class LogReading:
         """The start time in hours after midnight (None: not given)."""
         return None if self.start_time is None else clock_h(self.start_time)
 
-    def load(self, paths, model, params, console=None, notes: list[str] | None = None) -> list:
+    def load(self, paths, model, params, console: Console | None = None,
+             notes: list[str] | None = None) -> list:
         """The profiles of the logs ``paths`` for ``model`` with parameter vector ``params``
         (its top speed bounds the logged one); the loader's report is said on ``console``
         (a rich Console, or None) and its changes appended to ``notes``."""
@@ -80,7 +85,7 @@ class LogReading:
         return profiles
 
 
-def say_report(report, path, who: str, console) -> None:
+def say_report(report, path, who: str, console: Console | None) -> None:
     """A loader's report on ``console`` (None: nowhere): its changes (dim), then its warnings
     and ignored columns."""
     if console is None:

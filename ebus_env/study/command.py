@@ -11,6 +11,7 @@ from ebus_env.study.study_file import StudySpec
 
 if TYPE_CHECKING:
     import pandas as pd
+    from rich.console import Console
 
 # the columns the console shows (the report and summary.csv hold them all)
 CONSOLE = ("scenario", "cost_per_km", "site_peak_kw", "site_peak_15min_kw", "lowest_soc_pct",
@@ -43,7 +44,7 @@ class StudyRun:
 
 def run_study_file(study_file: str | Path, out: str | Path = "study", *, resume: bool = False,
                    use_ray: bool = False, address: str | None = None,
-                   workers: int | None = None, console=None) -> StudyRun:
+                   workers: int | None = None, console: Console | None = None) -> StudyRun:
     """Check a study file, run what is left of it, write ``summary.csv`` and ``report.html``
     (``ebus study``).
 
@@ -82,7 +83,7 @@ def run_study_file(study_file: str | Path, out: str | Path = "study", *, resume:
     return StudyRun(spec, write_summary(spec, rows, out), Path(out))
 
 
-def print_study(done: StudyRun, console) -> None:
+def print_study(done: StudyRun, console: Console) -> None:
     """What ``ebus study`` prints of a :class:`StudyRun`: the summary's main columns by
     scenario, and where the rows and the summary went."""
     from rich.table import Table
