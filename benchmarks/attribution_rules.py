@@ -79,7 +79,11 @@ def capture(job) -> Path:
     import importlib
 
     from ebus_env.config import load_bus
-    from ebus_env.diagnostics.candidates import effect_candidates, estimate_strength
+    from ebus_env.diagnostics.candidates import (
+        effect_candidates,
+        estimate_strength,
+        window_signatures,
+    )
     from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks, windows_in
 
     stages = importlib.import_module("ebus_env.diagnostics.diagnose")  # the module, not the function
@@ -98,9 +102,10 @@ def capture(job) -> Path:
     oracle = []
     if case.hidden is not None:
         oracle_profiles = truth_day(source, case, Path(days), oracle=True)[0]
+        signatures_of = window_signatures(oracle_profiles, res.windows, res.basis,
+                                          res.energy_j, res.base_power_w)
         oracle = [(c, oracle_profiles) for c in effect_candidates(
-            bus, dt_s, res.values, oracle_profiles, res.windows, res.basis, res.energy_j,
-            res.base_power_w)[0] if c.name == ORACLE]
+            bus, dt_s, res.values, signatures_of)[0] if c.name == ORACLE]
     nuisance = tuple(n for n in rung.calibration_result.free
                      if any(c.name == n for c in candidates))
     moving = np.column_stack([c.signature_w for n in nuisance for c in candidates

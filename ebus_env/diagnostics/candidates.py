@@ -113,12 +113,14 @@ def constant_drivers(eff: Effect, runs) -> bool:
     return True
 
 
-def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windows, basis,
-                      energy_j, base_power: np.ndarray, extra: tuple[Effect, ...] = (),
-                      progress=None, runs=()):
+def effect_candidates(bus: BusConfig, dt_s: float, values: dict, signatures_of,
+                      extra: tuple[Effect, ...] = (), progress=None, runs=()):
     """Signatures of every built-in effect the bus lacks, and of the ``extra`` ones (a
-    user's); returns (candidates, set aside). ``runs``: recorded runs of the bus along the
-    log, to set aside a built-in effect whose drivers they hold constant."""
+    user's); returns (candidates, set aside). ``signatures_of(model, rows)`` gives the extra
+    power of parameter ``rows`` of a model with the effect, per unit of the diagnosis (a
+    SoC log's windows, :func:`window_signatures`; a BMS log's bins). ``runs``: recorded runs
+    of the bus along the log, to set aside a built-in effect whose drivers they hold
+    constant."""
     candidates, aside = [], []
     pool = {e.name: e for e in registered_effects().values() if e.builtin}
     pool.update({e.name: e for e in extra})
@@ -134,7 +136,7 @@ def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windo
             continue
         if progress:
             progress(eff.name)
-        found = Candidate(eff.name, kind, np.zeros((1, len(windows))), effect=eff, bus=changed,
+        found = Candidate(eff.name, kind, np.zeros((1, 0)), effect=eff, bus=changed,
                           model=model, params=params)
         name = found.strength_param
         grid = None
@@ -142,8 +144,7 @@ def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windo
             i = model.param_index(name)
             grid = np.concatenate([[params[i]], np.linspace(*model.bounds[i], GRID)])
         rows, found.strengths = strength_rows(model, params, name, grid)
-        found.signatures_w = window_power(model, profiles, rows, windows, basis, energy_j) \
-            - base_power
+        found.signatures_w = signatures_of(model, rows)
         if np.max(np.abs(found.signatures_w)) < VISIBLE_W:
             aside.append({"effect": eff.name, "why": "changes nothing along this trip (are its "
                                                      "inputs in the log?)"})
@@ -156,6 +157,14 @@ def effect_candidates(bus: BusConfig, dt_s: float, values: dict, profiles, windo
             continue
         candidates.append(found)
     return candidates, aside
+
+
+def window_signatures(profiles, windows, basis, energy_j, base_power: np.ndarray):
+    """``signatures_of`` for :func:`effect_candidates` on a SoC log's windows: each row's
+    window power less the bus's."""
+    def signatures_of(model, rows):
+        return window_power(model, profiles, rows, windows, basis, energy_j) - base_power
+    return signatures_of
 
 
 def parameter_candidates(model, params: np.ndarray, profiles, windows, basis, energy_j,

@@ -25,6 +25,7 @@ from ebus_env.diagnostics.candidates import (
     estimate_strength,
     fitted_strength,
     parameter_candidates,
+    window_signatures,
 )
 from ebus_env.diagnostics.ladder import (
     Freedom,
@@ -381,8 +382,9 @@ def candidate_stage(bus: BusConfig, res: Residual, profiles, add: Sequence, say,
     user = tuple(e for e in map(as_effect, add) if not e.builtin)
     dt_s = profiles[0].dt_s
     values = {**res.values, **(held or {})}
-    candidates, aside = effect_candidates(bus, dt_s, values, profiles, res.windows,
-                                          res.basis, res.energy_j, res.base_power_w, user,
+    signatures_of = window_signatures(profiles, res.windows, res.basis, res.energy_j,
+                                      res.base_power_w)
+    candidates, aside = effect_candidates(bus, dt_s, values, signatures_of, user,
                                           progress=lambda n: say(f"  {n}"), runs=res.anchored)
     candidates += parameter_candidates(res.model, res.params, profiles, res.windows, res.basis,
                                        res.energy_j, res.base_power_w)

@@ -1,0 +1,91 @@
+"""What the diagnosis of a BMS log tests, as power the model would draw per bin:
+
+* **library effects** the bus lacks (and a user's, named for the ladder), each at
+  :data:`~ebus_env.diagnostics.candidates.GRID` strengths across its range
+  (:func:`~ebus_env.diagnostics.candidates.effect_candidates`), driven along the log as the
+  fitted bus is;
+* **forms outside the library** (:func:`outside_forms`): an unknown constant load in one
+  operating mode (standing, accelerating, cruising, braking, on a charger, braking at high
+  SoC), a load in the minutes after the doors close (a compressor refilling the air), and a
+  resisting force while moving (a dragging brake, soft tyres: power = F v). They stand for
+  what the library lacks, by where the power goes missing.
+
+On several days of one bus each also comes **from a day on** (:func:`from_day`): zero before
+that day, as a fault that starts then and stays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ebus_env.diagnostics.power import MODES, TRACE, Bins, anchored_runs
+
+AFTER_DOORS_S = 120.0  # how long a compressor refills the air after the doors close
+
+
+@dataclass
+class Form:
+    """A shape of missing power: its signatures (K, n_bins) [W per unit strength] and
+    what it stands for."""
+
+    name: str
+    kind: str  # "missing effect", "refinement", "outside"
+    signatures_w: np.ndarray
+    meaning: str = ""
+    strengths: np.ndarray | None = None  # the strength parameter's value per signature
+    strength_param: str | None = None
+    effect: object = None
+    since_day: int = 0  # the form acts from this day on (0: every day)
+
+
+def bin_signatures(profiles, bins: Bins, base_runs: list[np.ndarray]):
+    """``signatures_of`` for :func:`~ebus_env.diagnostics.candidates.effect_candidates` on a
+    BMS log: the extra terminal power of each parameter row of a model with the effect over
+    the fitted bus's, per bin."""
+    at = TRACE.index("battery_power_w")
+    base = bins.means([r[:, at] for r in base_runs])
+
+    def signatures_of(model, rows):
+        runs = anchored_runs(model, profiles, rows, ("battery_power_w",))
+        return bins.means([r[:, :, 0] for r in runs]) - base[None, :]
+    return signatures_of
+
+
+def outside_forms(profiles, bins: Bins, base_runs: list[np.ndarray]) -> list[Form]:
+    """Unknown loads by operating mode, after the doors close, and a resisting force."""
+    out = []
+    for j, mode in enumerate(MODES):
+        share = bins.mode_share[:, j]
+        if share.sum() * bins.seconds < 600.0:  # ten minutes at least
+            continue
+        out.append(Form(f"load while {mode}", "outside", 1e3 * share[None, :],
+                        f"an unknown load of a kW while {mode}"))
+    doors, force = [], []
+    v_at = TRACE.index("speed_mps")
+    for p, run in zip(profiles, base_runs, strict=True):
+        every = max(1, int(round(1.0 / p.dt_s)))
+        door = p.channel("door_open")[::every][:len(run)] > 0.5
+        closed = np.flatnonzero(door[:-1] & ~door[1:]) + 1
+        after = np.zeros(len(run))
+        for c in closed:
+            after[c:c + int(AFTER_DOORS_S)] = 1.0
+        doors.append(after)
+        force.append(run[:, v_at])
+    if np.any([d.any() for d in doors]):
+        out.append(Form("load after the doors close", "outside",
+                        1e3 * bins.means(doors)[None, :],
+                        f"an unknown load of a kW for {AFTER_DOORS_S:.0f} s after each door "
+                        "closing (an air compressor)"))
+    out.append(Form("resisting force", "outside", 1e3 * bins.means(force)[None, :],
+                    "an unknown force of a kN against the motion (a dragging brake, soft "
+                    "tyres), power F v"))
+    return out
+
+
+def from_day(form: Form, bins: Bins, day: int) -> Form:
+    """``form`` acting only from ``day`` on."""
+    on = (bins.day >= day).astype(float)
+    return Form(form.name, form.kind, form.signatures_w * on[None, :], form.meaning,
+                form.strengths, form.strength_param, form.effect, day)

@@ -1,0 +1,198 @@
+"""The bus as a BMS log shows it: its pack from the log, then the parameters that differ from
+bus to bus fitted to the logged power.
+
+**The pack.** A BMS counts the charge through the pack; over a day whose SoC moves by
+:data:`MIN_SOC_SPAN` or more, the charge counted against the SoC's change is the pack's
+usable capacity::
+
+    Q = - sum I dt / (3600 dSoC)      (a least-squares slope of counted charge on SoC)
+
+It sets the model's cell capacity before anything else: the pack's capacity decides how the
+SoC moves, so how the charger's CC/CV taper and the regen at high SoC go, and those decide
+power the model must not mistake for a missing effect.
+
+**The bus.** The bus-to-bus parameters (:data:`BUS_PARAMETERS`: mass, rolling resistance,
+drag, auxiliary base load, drivetrain efficiency, brake blending) are fitted to the bins'
+logged power by Gauss-Newton steps within their search box: each step runs the model along
+the log with every parameter moved a little (one batched run), and solves the bounded
+weighted least squares of the missing power on those changes. The same signatures, at the
+fitted values, are the nuisance columns of the held-out tests
+(:mod:`ebus_env.diagnostics.heldout`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ebus_env.diagnostics.heldout import Nuisance, fit_all
+from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
+from ebus_env.diagnostics.power import MODES, TRACE, Bins, anchored_runs
+
+PACK = ("rint_battery.cell_capacity_ah", "rint_battery.cell_resistance_mohm")
+BUS_PARAMETERS = {**{k: v for k, v in NUISANCE.items() if k not in PACK},
+                  **RESOLVED_BY_CURRENT, "aero_drag.drag_coef": (0.7, 1.3),
+                  "efficiency_map.regen_power_kw": (0.5, 1.25)}
+"""The parameters fitted to a BMS log's power, with their search range as factors of the
+configured value (the diagnosis's bus-to-bus ranges, and two a log of the power resolves and
+a SoC log does not: the drag, and the motor's regenerative power limit)."""
+SENSOR = {"current sensor gain": (-0.03, 0.03), "current sensor offset [A]": (-2.0, 2.0),
+          "drivetrain loss while moving [kW]": (-2.0, 2.0)}
+"""Terms of the logged power the bus's parameters do not give, each linear: the current
+sensor's gain and offset (a Hall sensor's, within a few per cent and amperes),
+``P_log = (1 + g) P + o V``, and the drivetrain's losses while the bus moves beyond what its
+efficiency gives (an inverter's switching, a motor's iron and a gearbox's churning losses,
+which come with turning, not with torque: kW whatever the load). A gain error shows most on
+a fast charger (1 % of 450 kW is 4.5 kW, as much as the bus's loads); a loss while moving,
+left out, would set the auxiliary load between the standing and the moving bins' and leave
+a spurious standing load. They are fitted beside the bus's parameters and stay nuisances of
+every test."""
+STEP = 0.05  # a parameter's change for its signature, of its search range
+ITERATIONS = 4
+MIN_SOC_SPAN = 0.05
+
+
+def search_box(model, fixed=()) -> dict[str, tuple[float, float]]:
+    """The :data:`BUS_PARAMETERS` the model has (and the user does not hold), with their
+    ranges inside the declared bounds."""
+    out = {}
+    for name, (low, high) in BUS_PARAMETERS.items():
+        name = model.equivalent(name)
+        if name is None or name in fixed:
+            continue
+        i = model.param_index(name)
+        value = model.params[i]
+        lo, hi = model.bounds[i]
+        out[name] = (max(lo, min(low, high) * value), min(hi, max(low, high) * value))
+    return out
+
+
+def counted_capacity_ah(profiles) -> float | None:
+    """The pack's capacity [Ah] from the charge the logged current counts against the logged
+    SoC (None when the SoC moves too little to tell)."""
+    charge, soc = [], []
+    for p in profiles:
+        every = max(1, int(round(1.0 / p.dt_s)))
+        current = p.measured["battery_current_a"][::every]
+        level = p.measured["soc_frac"][::every]
+        ok = np.isfinite(current) & np.isfinite(level)
+        counted = -np.cumsum(np.where(ok, current, 0.0)) * every * p.dt_s / 3600.0
+        charge.append(counted[ok] - counted[ok][0])
+        soc.append(level[ok] - level[ok][0])
+    q, s = np.concatenate(charge), np.concatenate(soc)
+    if np.ptp(s) < MIN_SOC_SPAN:
+        return None
+    slope = float(np.sum(q * s) / np.sum(s * s))
+    return slope if slope > 0 else None
+
+
+def pack_values(model, profiles) -> dict[str, float]:
+    """The cell capacity the log's counted charge gives (empty when it cannot)."""
+    capacity_ah = counted_capacity_ah(profiles)
+    if capacity_ah is None:
+        return {}
+    name = model.equivalent("rint_battery.cell_capacity_ah")
+    parallel = model.equivalent("rint_battery.cells_parallel")
+    if name is None or parallel is None:
+        return {}
+    strings = model.params[model.param_index(parallel)]
+    lo, hi = model.bounds[model.param_index(name)]
+    return {name: float(np.clip(capacity_ah / strings, lo, hi))}
+
+
+@dataclass
+class BusFit:
+    """The fitted bus: its parameter row, runs along the log and its nuisance columns."""
+
+    model: object
+    names: list[str]  # the fitted parameters
+    box: dict[str, tuple[float, float]]
+    params: np.ndarray  # the model's full parameter row
+    runs: list[np.ndarray]  # per profile (n_seconds, len(TRACE)) at params
+    nuisance: Nuisance  # columns on every bin, the box about the fitted values
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Every parameter of the model by name."""
+        return {n: float(v) for n, v in zip(self.model.param_names, self.params, strict=True)}
+
+    def missing(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> np.ndarray:
+        """The power the fitted bus misses per bin, the sensor's fitted gain and offset taken
+        off (fitted on the ``use`` bins with ``weights``)."""
+        power = self.nuisance.x[:, 0]
+        sensor = self.nuisance.x[:, :len(SENSOR)]
+        w = np.ones(len(logged_w)) if weights is None else weights
+        local = Nuisance(list(SENSOR), sensor[use], self.nuisance.low[:len(SENSOR)],
+                         self.nuisance.high[:len(SENSOR)])
+        _, _, coef, _, _ = fit_all(logged_w[use] - power[use], w[use], local)
+        return logged_w - power - sensor @ coef
+
+    def range_ends(self, tol: float = 0.02) -> dict[str, str]:
+        """The fitted parameters at an end of their search range ("lower" or "upper")."""
+        out = {}
+        for name in self.names:
+            lo, hi = self.box[name]
+            value = self.params[self.model.param_index(name)]
+            if hi > lo and value <= lo + tol * (hi - lo):
+                out[name] = "lower"
+            elif hi > lo and value >= hi - tol * (hi - lo):
+                out[name] = "upper"
+        return out
+
+
+def _signatures(model, profiles, params, names, box):
+    """Runs at ``params`` and with each of ``names`` moved by :data:`STEP` of its range:
+    (runs (per profile (n_seconds, len(TRACE))), columns (per profile (p, n_seconds)) [W per
+    unit], the change made)."""
+    rows = np.tile(params, (len(names) + 1, 1))
+    change = np.zeros(len(names))
+    for j, name in enumerate(names):
+        i = model.param_index(name)
+        lo, hi = box[name]
+        step = STEP * (hi - lo)
+        change[j] = step if params[i] + step <= hi else -step
+        rows[j + 1, i] += change[j]
+    traces = anchored_runs(model, profiles, rows, TRACE)
+    at = TRACE.index("battery_power_w")
+    runs = [t[0] for t in traces]
+    columns = [(t[1:, :, at] - t[0, :, at]) / change[:, None] for t in traces]
+    return runs, columns, change
+
+
+def fit_bus(model, profiles, bins: Bins, logged_w: np.ndarray, voltage_v: np.ndarray,
+            weights: np.ndarray, start: dict[str, float] | None = None, fixed=(),
+            iterations: int = ITERATIONS) -> BusFit:
+    """Fit the bus-to-bus parameters and the :data:`SENSOR` terms to the logged power of the
+    fitted bins (``logged_w``, ``voltage_v``: per bin) with ``weights``, from the model's
+    values and ``start``. The fit's nuisance columns are the :data:`SENSOR` terms' first,
+    then the parameters'."""
+    box = search_box(model, fixed)
+    names = list(box)
+    params = model.param_vector(model.carry_over(start or {}))
+    index = [model.param_index(n) for n in names]
+    low = np.array([box[n][0] for n in names])
+    high = np.array([box[n][1] for n in names])
+    params[index] = np.clip(params[index], low, high)
+    at = TRACE.index("battery_power_w")
+    use = bins.fit
+    sensor_low = np.array([v[0] for v in SENSOR.values()])
+    sensor_high = np.array([v[1] for v in SENSOR.values()])
+
+    def nuisance_at(runs, columns):
+        power = bins.means([r[:, at] for r in runs])
+        moving = 1e3 * (1.0 - bins.mode_share[:, MODES.index("standing")]
+                        - bins.mode_share[:, MODES.index("charging")])
+        x = np.column_stack([power, voltage_v, moving, bins.means(columns).T])
+        return power, Nuisance([*SENSOR, *names], x, np.append(sensor_low, low - params[index]),
+                               np.append(sensor_high, high - params[index]))
+
+    for _ in range(iterations):
+        runs, columns, _ = _signatures(model, profiles, params, names, box)
+        power, nuisance = nuisance_at(runs, columns)
+        local = Nuisance(nuisance.names, nuisance.x[use], nuisance.low, nuisance.high)
+        _, _, step, _, _ = fit_all(logged_w[use] - power[use], weights[use], local)
+        params = params.copy()
+        params[index] = np.clip(params[index] + step[len(SENSOR):], low, high)
+    runs, columns, _ = _signatures(model, profiles, params, names, box)
+    return BusFit(model, names, box, params, runs, nuisance_at(runs, columns)[1])
