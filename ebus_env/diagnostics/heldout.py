@@ -63,7 +63,16 @@ class Test:
     fitted: np.ndarray  # y_hat of the fit on all the data (n,)
     loss: float  # weighted loss of that fit
     folds_loss: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per block, held out
-    chi2: float = 0.0  # held-out loss removed, in the null's noise units (see HeldOut.test)
+    unit: float = 1.0  # the noise unit of its held-out residuals (:func:`noise_unit`)
+
+    @property
+    def held_out_loss(self) -> float:
+        return float(self.folds_loss.sum())
+
+    @property
+    def chi2(self) -> float:
+        """The held-out loss it removes, in noise units: ``sum(gain) / unit``."""
+        return float(self.block_gain.sum() / self.unit)
 
 
 def folds_of(block: np.ndarray, folds: int = FOLDS) -> np.ndarray:
@@ -159,8 +168,7 @@ class HeldOut:
         gain = self.null_blocks - own
         k, beta, coef, fitted, loss = fit_all(self.y, self.w, self.nuisance, signatures)
         return Test(name, paired_z(gain), float(gain.sum() / max(self.null_blocks.sum(), 1e-300)),
-                    gain, k, beta, coef, fitted, loss, own,
-                    float(gain.sum() / noise_unit(self.y - pred, self.w)))
+                    gain, k, beta, coef, fitted, loss, own, noise_unit(self.y - pred, self.w))
 
 
 def noise_unit(residual: np.ndarray, w: np.ndarray) -> float:
@@ -196,7 +204,7 @@ def paired_z(gain: np.ndarray) -> float:
     return float(np.mean(gain) / se) if se > 0 else 0.0
 
 
-def versus(first: Test, second: Test) -> float:
-    """How far ``first`` predicts the held-out blocks better than ``second``: the paired z
-    of their block losses."""
-    return paired_z(second.folds_loss - first.folds_loss)
+def margin(first: Test, second: Test) -> float:
+    """How much better ``first`` predicts the held-out blocks than ``second``, in ``first``'s
+    noise units (negative: worse)."""
+    return (second.held_out_loss - first.held_out_loss) / first.unit

@@ -5,7 +5,9 @@ bus to bus fitted to the logged power.
 :data:`MIN_SOC_SPAN` or more, the charge counted against the SoC's change is the pack's
 usable capacity::
 
-    Q = - sum I dt / (3600 dSoC)      (a least-squares slope of counted charge on SoC)
+    q(t) = - int_0^t I dt / 3600 = Q (SoC(t) - SoC(0)) + c t      (least squares for Q, c)
+
+where ``c t`` takes up a current sensor's offset, which a count accumulates.
 
 It sets the model's cell capacity before anything else: the pack's capacity decides how the
 SoC moves, so how the charger's CC/CV taper and the regen at high SoC go, and those decide
@@ -71,20 +73,22 @@ def search_box(model, fixed=()) -> dict[str, tuple[float, float]]:
 def counted_capacity_ah(profiles) -> float | None:
     """The pack's capacity [Ah] from the charge the logged current counts against the logged
     SoC (None when the SoC moves too little to tell)."""
-    charge, soc = [], []
+    charge, soc, hours = [], [], []
     for p in profiles:
         every = max(1, int(round(1.0 / p.dt_s)))
         current = p.measured["battery_current_a"][::every]
         level = p.measured["soc_frac"][::every]
         ok = np.isfinite(current) & np.isfinite(level)
-        counted = -np.cumsum(np.where(ok, current, 0.0)) * every * p.dt_s / 3600.0
+        step_h = every * p.dt_s / 3600.0
+        counted = -np.cumsum(np.where(ok, current, 0.0)) * step_h
         charge.append(counted[ok] - counted[ok][0])
         soc.append(level[ok] - level[ok][0])
+        hours.append(np.flatnonzero(ok) * step_h)
     q, s = np.concatenate(charge), np.concatenate(soc)
     if np.ptp(s) < MIN_SOC_SPAN:
         return None
-    slope = float(np.sum(q * s) / np.sum(s * s))
-    return slope if slope > 0 else None
+    (slope, _), *_ = np.linalg.lstsq(np.column_stack([s, np.concatenate(hours)]), q, rcond=None)
+    return float(slope) if slope > 0 else None
 
 
 def pack_values(model, profiles) -> dict[str, float]:

@@ -1,14 +1,19 @@
 """The diagnosis of BMS logs, in the power domain (see :mod:`ebus_env.diagnostics.power`).
 
 1. The pack from the log (its capacity from the counted charge), the bus-to-bus parameters
-   fitted to the logged power (:mod:`~ebus_env.diagnostics.power_fit`), twice: the second
-   time with each bin weighted by the scatter of its operating mode.
+   and the sensor's terms fitted to the logged power (:mod:`~ebus_env.diagnostics.power_fit`),
+   twice: the second time with each bin weighted by the scatter of its operating mode.
 2. Candidates: the library's effects the bus lacks, forms outside the library, and on several
    days each of them from a day on (:mod:`~ebus_env.diagnostics.power_candidates`).
 3. Each tested against the bus-to-bus parameters alone on held-out blocks
-   (:mod:`~ebus_env.diagnostics.heldout`); the decision (:func:`decide`).
-4. The named effect's strength and the energy it adds, with block-bootstrap intervals; the
-   missing power by operating mode; the held-out fall of the power residual.
+   (:mod:`~ebus_env.diagnostics.heldout`): the held-out loss it removes, in noise units
+   (``chi2``), and the decision (:func:`decide`).
+4. The named effect's strength and the energy it adds, with intervals; from which day it acts
+   on several days; the missing power by operating mode; what the logged voltage says of the
+   pack's resistance (a cold pack shows there, not in the power).
+
+The decision's constants are set on the control days of one truth source and checked on the
+others (docs/validation.md says which, and how to measure them again).
 """
 
 from __future__ import annotations
@@ -17,10 +22,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2 as chi2_dist
 
 from ebus_env.diagnostics.candidates import effect_candidates
-from ebus_env.diagnostics.heldout import HeldOut, Nuisance, Test, fit_all, noise_unit, versus
+from ebus_env.diagnostics.heldout import HeldOut, Nuisance, Test, fit_all, margin, noise_unit
 from ebus_env.diagnostics.power import (
     BIN_S,
     MODES,
@@ -38,32 +43,51 @@ from ebus_env.diagnostics.power_candidates import (
 )
 from ebus_env.diagnostics.power_fit import fit_bus, pack_values
 
-ALPHA = 0.001
-"""The chance, on a day with nothing missing, that a candidate passes the held-out test, over
-all the candidates tried together (Bonferroni: each is tested at ALPHA / K)."""
-Z_APART = 2.0
-"""How far (paired z over held-out blocks) the first candidate must predict better than the
-runner-up to be named alone; else the data cannot tell them apart."""
+ALPHA = 0.01
+"""The chance, on a day with nothing missing, that some candidate passes, over all the
+candidates tried together (Bonferroni: each is tested at ALPHA / K)."""
+NULL_SCALE = 8.0
+"""The held-out chi-square of a candidate on a day with nothing missing is this many times a
+chi-square of one degree of freedom: two models of a bus never agree to the watt, and the
+structure they differ by is not noise (set on the tuning source's control days)."""
+FORM_SPREAD = 0.35
+"""The spread (one standard deviation of ln) of an effect's energy as a library form gives it
+against the bus's own: a library form is not the bus's (set on the tuning source's days
+named right); the energy's 90 % interval takes it in beside the noise's."""
 BOOT = 200
 SEED = 0
+OUTSIDE_MODE = {"load while standing": "idle", "load while accelerating": "accelerating",
+                "load while cruising": "cruising", "load while braking": "braking/regen",
+                "load while charging": "CC charging",
+                "load while braking at high SoC": "braking/regen",
+                "load after the doors close": "idle", "resisting force": "cruising"}
+"""The operating mode (as the report names them) where each form outside the library puts
+the power it misses."""
 
 
-def z_needed(tried: int) -> float:
-    """The held-out z a candidate needs when ``tried`` were tested (Bonferroni)."""
-    return float(norm.isf(ALPHA / max(tried, 1)))
+def needed(tried: int) -> float:
+    """The held-out chi-square a candidate needs when ``tried`` were tested."""
+    return float(NULL_SCALE * chi2_dist.isf(ALPHA / max(tried, 1), 1))
+
+
+APART = float(NULL_SCALE * chi2_dist.isf(0.05, 1))
+"""How much better (in noise units, held out) one candidate must predict than another to be
+preferred to it: a 5 % test at the same scale."""
 
 
 @dataclass
 class Finding:
     """What the power path concludes."""
 
-    status: str  # named, tie, outside library, noise
-    verdict: str | None
+    status: str  # named, voltage, tie, outside library, noise
+    verdict: str | None  # the named effect
     why: str
-    since_day: int
-    tests: list[Test]
+    since_day: int  # the day the named effect (or the outside form) acts from; 0: every day
+    since_interval: tuple[int, int]  # the days it may start on, within the 90 % level
+    clue: str | None  # the operating mode where a load outside the library shows
+    tests: list[Test]  # best first
     forms: dict[str, Form]
-    needed_z: float
+    needed: float
     strength: dict = field(default_factory=dict)
     modes: list[dict] = field(default_factory=list)
     fall: float = float("nan")
@@ -85,65 +109,89 @@ def class_weights(residual: np.ndarray, bins, use: np.ndarray) -> np.ndarray:
     return w
 
 
-def candidate_forms(bus, profiles, bins, fit, days: int, add=(), values=None, runs=()):
+def candidate_forms(bus, profiles, bins, fit, days: int, add=(), runs=()):
     """Every form to test: the library's effects, the forms outside it, and on several days
-    each from a day on. Returns (forms, set aside)."""
+    each from a day on. Returns (forms, the library's candidates, set aside)."""
     signatures_of = bin_signatures(profiles, bins, fit.runs)
     user = tuple(e for e in add if not e.builtin)
-    effects, aside = effect_candidates(bus, profiles[0].dt_s, values or fit.values,
-                                       signatures_of, user, runs=runs)
+    effects, aside = effect_candidates(bus, profiles[0].dt_s, fit.values, signatures_of, user,
+                                       runs=runs)
     forms = [Form(c.name, c.kind, c.signatures_w, strengths=c.strengths,
                   strength_param=c.strength_param, effect=c.effect) for c in effects]
     forms += outside_forms(profiles, bins, fit.runs)
     if days > 1:
         forms += [from_day(f, bins, d) for f in list(forms) for d in range(1, days)]
-    return forms, aside
+    return forms, effects, aside
 
 
 def label(form: Form) -> str:
     return form.name if form.since_day == 0 else f"{form.name} from day {form.since_day}"
 
 
-def decide(tests: dict[str, Test], forms: dict[str, Form], needed: float
-           ) -> tuple[str, str | None, str]:
-    """(status, the named form's label or None, why)."""
-    passing = sorted((t for t in tests.values() if t.z >= needed), key=lambda t: -t.z)
-    library = [t for t in passing if forms[t.name].kind != "outside"]
-    outside = [t for t in passing if forms[t.name].kind == "outside"]
-    if library:
-        top = library[0]
-        # a change from a day on is the finding only where it beats the effect on every day
-        always = tests.get(forms[top.name].name)
-        if forms[top.name].since_day and always is not None and versus(top, always) < Z_APART:
-            top = always if always.z >= needed else top
-        rivals = [t for t in library if forms[t.name].name != forms[top.name].name]
-        if rivals and versus(top, rivals[0]) < Z_APART:
+def since(tests: dict[str, Test], forms: dict[str, Form], name: str) -> tuple[int, tuple]:
+    """The day a form acts from (0: every day) and the days within :data:`APART` of the best,
+    among the forms of ``name`` on every day and from each day on."""
+    mine = {forms[k].since_day: t for k, t in tests.items() if forms[k].name == name}
+    best = min(mine.values(), key=lambda t: t.held_out_loss)
+    day = next(d for d, t in mine.items() if t is best)
+    close = [d for d, t in mine.items() if margin(best, t) <= APART]
+    return day, (min(close), max(close))
+
+
+def decide(tests: dict[str, Test], forms: dict[str, Form]
+           ) -> tuple[str, str | None, str, str | None]:
+    """(status, the named effect or None, why, the operating-mode clue or None).
+
+    A library effect is named when its held-out chi-square passes :func:`needed` for the
+    number of candidates tried, no other library effect that passes comes within
+    :data:`APART` of it, and no form outside the library predicts clearly better (then the
+    library's effect explains only part). Where no library effect passes and a form outside
+    it does, no library effect explains the missing power, and the form says where it goes
+    missing."""
+    threshold = needed(len(tests))
+    ranked = sorted(tests.values(), key=lambda t: -t.chi2)
+    library = [t for t in ranked if forms[t.name].kind != "outside"]
+    outside = [t for t in ranked if forms[t.name].kind == "outside"]
+    best_out = outside[0] if outside and outside[0].chi2 >= threshold else None
+
+    def best_of(effect):
+        return min((t for t in library if forms[t.name].name == effect),
+                   key=lambda t: t.held_out_loss)
+
+    effects = list(dict.fromkeys(forms[t.name].name for t in library if t.chi2 >= threshold))
+    if effects:
+        best = [best_of(e) for e in effects]
+        best.sort(key=lambda t: t.held_out_loss)
+        top = best[0]
+        name = forms[top.name].name
+        if len(best) > 1 and margin(top, best[1]) < APART:
+            other = forms[best[1].name].name
             return "tie", None, (
-                f"{label(forms[top.name])} and {label(forms[rivals[0].name])} both explain the "
-                f"missing power on held-out blocks (z {top.z:.1f} and {rivals[0].z:.1f}, "
-                f"{needed:.1f} needed) and neither predicts them clearly better: the data "
-                "cannot tell them apart")
-        return "named", top.name, ""
-    if outside:
-        top = outside[0]
+                f"{name} and {other} both explain the missing power on held-out blocks "
+                f"(chi-square {top.chi2:.0f} and {best[1].chi2:.0f}, {threshold:.0f} needed) and "
+                "neither predicts them clearly better: the data cannot tell them apart"), None
+        if best_out is not None and margin(best_out, top) >= APART:
+            form = forms[best_out.name]
+            return "outside library", None, (
+                f"{name} explains part of the missing power (chi-square {top.chi2:.0f}), but "
+                f"{form.meaning.replace('a kW', 'some')} predicts the held-out blocks clearly "
+                f"better (chi-square {best_out.chi2:.0f}): a load or force the library lacks"
+            ), OUTSIDE_MODE.get(form.name)
+        return "named", name, "", None
+    best_lib = library[0] if library else None
+    lib_note = (f"the best library effect, {label(forms[best_lib.name])}, removes "
+                f"chi-square {best_lib.chi2:.0f} of the held-out loss" if best_lib
+                else "no library effect could be tested")
+    if best_out is not None:
+        form = forms[best_out.name]
+        when = f", from day {form.since_day} on" if form.since_day else ""
         return "outside library", None, (
-            f"no library effect explains the missing power on held-out blocks (the best, "
-            f"{_best_library(tests, forms)}); {forms[top.name].meaning.replace('a kW', 'some')} "
-            f"does (z {top.z:.1f}, {needed:.1f} needed)"
-            + (f", from day {forms[top.name].since_day} on" if forms[top.name].since_day else ""))
+            f"no library effect explains the missing power on held-out blocks ({lib_note}; "
+            f"{threshold:.0f} needed); {form.meaning.replace('a kW', 'some')} does "
+            f"(chi-square {best_out.chi2:.0f}){when}"), OUTSIDE_MODE.get(form.name)
     return "noise", None, (f"no candidate predicts held-out blocks better than the bus's own "
-                           f"parameters (the best, {_best(tests, forms)}; {needed:.1f} needed): "
-                           "the model explains these data")
-
-
-def _best(tests, forms) -> str:
-    t = max(tests.values(), key=lambda t: t.z)
-    return f"{label(forms[t.name])}, z {t.z:.1f}"
-
-
-def _best_library(tests, forms) -> str:
-    lib = [t for t in tests.values() if forms[t.name].kind != "outside"]
-    return _best(dict((t.name, t) for t in lib), forms) if lib else "none tested"
+                           f"parameters ({lib_note}; {threshold:.0f} needed): the model "
+                           "explains these data"), None
 
 
 def energy_kwh(test: Test, form: Form) -> float:
@@ -152,17 +200,17 @@ def energy_kwh(test: Test, form: Form) -> float:
 
 
 def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, block,
-                seconds: float, unit: float) -> dict:
+                seconds: float) -> dict:
     """The form's strength (its parameter's value at the chosen signature) and the energy it
-    adds over the logs [kWh], with 90 % intervals: the strengths whose fit is within the 90 %
-    level of the best (their loss within 2.71 noise units: what the shape of the data allows),
-    and refits on blocks resampled with replacement (what its noise allows), together.
-    ``signatures`` are the form's on the fitted units; its own cover every unit (the energy)."""
+    adds over the logs [kWh], with 90 % intervals: the strengths whose fit lies within 2.71
+    noise units of the best (what the shape of the data allows), refits on blocks resampled
+    with replacement (what its noise allows) and, for the energy, :data:`FORM_SPREAD`.
+    ``signatures`` are the form's on the fitted units; its own cover every unit."""
     total = form.signatures_w.sum(axis=1) * seconds / 3.6e6  # kWh per unit coefficient
-    sub = signatures
+    unit = noise_unit(y - test.fitted, w)
     energies, values = [], []
-    for k in range(len(sub)):
-        _, beta, _, _, loss = fit_all(y, w, nuisance, sub[k:k + 1])
+    for k in range(len(signatures)):
+        _, beta, _, _, loss = fit_all(y, w, nuisance, signatures[k:k + 1])
         if (loss - test.loss) / unit <= 2.71:
             energies.append(beta * total[k])
             if form.strengths is not None:
@@ -170,15 +218,19 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     rng = np.random.default_rng(SEED)
     blocks = np.unique(block)
     for _ in range(BOOT):
-        pick = rng.choice(blocks, len(blocks))
-        rows = np.concatenate([np.flatnonzero(block == b) for b in pick])
+        rows = np.concatenate([np.flatnonzero(block == b)
+                               for b in rng.choice(blocks, len(blocks))])
         part = Nuisance(nuisance.names, nuisance.x[rows], nuisance.low, nuisance.high)
-        k, beta, *_ = fit_all(y[rows], w[rows], part, sub[:, rows])
+        k, beta, *_ = fit_all(y[rows], w[rows], part, signatures[:, rows])
         energies.append(beta * total[k])
         if form.strengths is not None:
             values.append(form.strengths[k])
-    out = {"energy_kwh": float(test.beta * total[test.choice]),
-           "energy_interval_kwh": [float(x) for x in np.quantile(energies, [0.05, 0.95])],
+    energy = float(test.beta * total[test.choice])
+    low, high = np.quantile(energies, [0.05, 0.95])
+    spread = math.exp(1.645 * FORM_SPREAD)
+    out = {"energy_kwh": energy,
+           "energy_interval_kwh": [float(min(low, energy / spread)),
+                                   float(max(high, energy * spread))],
            "coefficient": test.beta}
     if form.strengths is not None and form.strength_param:
         out["parameters"] = {form.strength_param: float(form.strengths[test.choice])}
@@ -204,13 +256,33 @@ def mode_table(residual, w, bins, use) -> list[dict]:
     coef = fit(np.arange(len(y)))
     rng = np.random.default_rng(SEED)
     blocks = np.unique(block)
-    boot = [fit(np.concatenate([np.flatnonzero(block == b)
-                                for b in rng.choice(blocks, len(blocks))])) for _ in range(BOOT)]
-    se = np.nanstd(np.array(boot), axis=0)
+    boot = np.array([fit(np.concatenate([np.flatnonzero(block == b)
+                                         for b in rng.choice(blocks, len(blocks))]))
+                     for _ in range(BOOT)])
+    seen = np.isfinite(boot).any(axis=0)
+    se = np.full(boot.shape[1], np.nan)
+    se[seen] = np.nanstd(boot[:, seen], axis=0)
     hours = bins.mode_share[use].sum(axis=0) * bins.seconds / 3600.0
     return [{"mode": m, "missing_kw": float(c) / 1e3, "stderr_kw": float(s) / 1e3,
              "hours": float(h), "missing_kwh": float(c) / 1e3 * float(h)}
             for m, c, s, h in zip(MODES, coef, se, hours, strict=True)]
+
+
+def voltage_evidence(model, profiles, params, candidates):
+    """What the logged voltage says of the pack's resistance over the model's, and which
+    library effect reproduces a change of it over the log
+    (:mod:`~ebus_env.diagnostics.voltage`); None without a change to show."""
+    from ebus_env.diagnostics.residual import anchored_run, make_windows
+    from ebus_env.diagnostics.voltage import explain_change, resistance_check
+
+    every = max(1, int(round(1.0 / profiles[0].dt_s)))
+    windows = make_windows(profiles, 300.0, every)
+    anchored = [anchored_run(model, p, params, windows, k, every) for k, p in enumerate(profiles)]
+    check = resistance_check(profiles, anchored, windows)
+    if check is not None and check.changes:
+        check.explained_by = explain_change(check, profiles, anchored, windows,
+                                            np.ones(len(windows), bool), candidates)
+    return check
 
 
 @dataclass
@@ -227,6 +299,7 @@ class PowerRun:
     finding: Finding
     aside: list[dict]
     pack: dict
+    resistance: object = None  # voltage.ResistanceCheck, or None
 
 
 def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=None) -> PowerRun:
@@ -244,46 +317,61 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     say("fitting the bus to the logged power")
     fit = fit_bus(model, profiles, bins, logged, voltage, np.ones(len(bins)), start,
                   tuple(fixed))
-    missing = fit.missing(logged, use)
-    weights = class_weights(missing, bins, use)
+    weights = class_weights(fit.missing(logged, use), bins, use)
     fit = fit_bus(model, profiles, bins, logged, voltage, weights, fit.values, tuple(fixed), 2)
     missing = fit.missing(logged, use, weights)
     weights = class_weights(missing, bins, use)
     say("signatures of the candidates")
-    recorded = [model.simulate(p, fit.params, soc_start=None, record_every=max(
-        1, int(round(1.0 / p.dt_s)))) for p in profiles]
+    every = max(1, int(round(1.0 / profiles[0].dt_s)))
+    recorded = [model.simulate(p, fit.params, record_every=every) for p in profiles]
     days = max(day_of) + 1
-    forms, aside = candidate_forms(bus, profiles, bins, fit, days, add, fit.values, recorded)
+    forms, effects, aside = candidate_forms(bus, profiles, bins, fit, days, add, recorded)
     by_label = {label(f): f for f in forms}
     say(f"held-out tests of {len(forms)} candidates")
-    nuisance = fit.nuisance.__class__(fit.nuisance.names, fit.nuisance.x[use],
-                                      fit.nuisance.low, fit.nuisance.high)
+    nuisance = Nuisance(fit.nuisance.names, fit.nuisance.x[use], fit.nuisance.low,
+                        fit.nuisance.high)
     held = HeldOut(missing[use], weights[use], nuisance, bins.block[use])
     tests = {name: held.test(name, f.signatures_w[:, use]) for name, f in by_label.items()}
-    needed = z_needed(len(tests))
-    status, verdict, why = decide(tests, by_label, needed)
-    finding = Finding(status, verdict, why, by_label[verdict].since_day if verdict else 0,
-                      sorted(tests.values(), key=lambda t: -t.chi2), by_label, needed)
-    if verdict:
-        form = by_label[verdict]
-        t = tests[verdict]
-        finding.strength = strength_of(t, form, form.signatures_w[:, use], missing[use],
-                                       weights[use], nuisance, bins.block[use], BIN_S,
-                                       noise_unit(missing[use] - t.fitted, weights[use]))
-        finding.fall = tests[verdict].gain
+    status, verdict, why, clue = decide(tests, by_label)
+    finding = Finding(status, verdict, why, 0, (0, 0), clue,
+                      sorted(tests.values(), key=lambda t: -t.chi2), by_label,
+                      needed(len(tests)))
+    if verdict is not None:
+        finding.since_day, finding.since_interval = since(tests, by_label, verdict)
+        best = next(t for k, t in tests.items() if by_label[k].name == verdict
+                    and by_label[k].since_day == finding.since_day)
+        form = by_label[best.name]
+        finding.strength = strength_of(best, form, form.signatures_w[:, use], missing[use],
+                                       weights[use], nuisance, bins.block[use], BIN_S)
+        finding.fall = best.gain
+    elif status == "outside library" and tests:
+        top = max((t for k, t in tests.items() if by_label[k].kind == "outside"),
+                  key=lambda t: t.chi2)
+        finding.since_day, finding.since_interval = since(tests, by_label,
+                                                          by_label[top.name].name)
     finding.modes = mode_table(missing, weights, bins, use)
+    say("the pack's resistance from the logged voltage")
+    check = voltage_evidence(model, profiles, fit.params, effects)
+    if check is not None and check.best is not None and finding.status in ("noise",
+                                                                          "outside library"):
+        finding.status, finding.verdict = "voltage", check.best.effect
+        finding.why = (f"the logged voltage shows the pack's resistance changing over the log, "
+                       f"and {check.best.effect} reproduces {100 * check.best.explained:.0f} % "
+                       "of the change; the power the pack delivered shows no missing effect")
     return PowerRun(model, list(profiles), bins, fit, logged, missing, weights, finding, aside,
-                    pack)
+                    pack, check)
 
 
 def summary(run: PowerRun) -> dict:
     """The finding in plain numbers (for quick looks and the bench)."""
     f = run.finding
     return {"status": f.status, "verdict": f.verdict, "since_day": f.since_day,
-            "needed_z": f.needed_z, "why": f.why,
-            "top": [(t.name, round(t.z, 2), round(t.gain, 3), round(t.chi2, 1),
+            "since_interval": f.since_interval, "clue": f.clue, "needed": f.needed,
+            "why": f.why,
+            "top": [(t.name, round(t.chi2, 1), round(t.gain, 3),
                      round(energy_kwh(t, f.forms[t.name]), 2)) for t in f.tests[:5]],
             "strength": f.strength, "fall": f.fall,
             "modes": [(m["mode"], round(m["missing_kw"], 2), round(m["stderr_kw"], 2))
                       for m in f.modes if math.isfinite(m["missing_kw"])],
-            "pack": run.pack}
+            "pack": run.pack,
+            "resistance": run.resistance.finding() if run.resistance else None}
