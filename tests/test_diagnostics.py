@@ -221,10 +221,11 @@ def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(nam
     """Added and re-calibrated, the hidden effect brings the held-out error down to that of
     the model that made the day (the log's own noise), within 20 %: the bus-to-bus parameters
     trade off against the effect's (on the regen day they fit the calibration blocks better than
-    the truth does, and the held-out ones 17 % worse). Where the calibration without it left
-    the error above twice that, the effect is named on the calibrated residual too and the
-    error at least halves; the cold pack that warms by its own losses (cold_battery) is the
-    case where the calibrated pack resistance takes up all but that much of it."""
+    the truth does, and the held-out ones 17 % worse). The calibration without it leaves the
+    error above twice that (a cold pack too: on the charger its cells sit at their upper
+    voltage for half an hour and the charge current is capped, which no warm pack's parameters
+    reproduce); the effect is named on the calibrated residual
+    too and the error at least halves."""
     from ebus_env.calibration.calibrate import evaluate_fit
 
     case = hidden.case(name)
@@ -236,15 +237,18 @@ def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(nam
     truth_nrmse = evaluate_fit(truth, profiles, truth.params, split_blocks(profiles)[1])[0]["nrmse"]
     before, after = (r.held_out["nrmse"] for r in (d.ladder[0], d.ladder[-1]))
     assert after <= 1.2 * truth_nrmse, (before, after, truth_nrmse)
-    assert (before > 2 * truth_nrmse) == (name != "cold_battery"), (before, truth_nrmse)
-    if before > 2 * truth_nrmse:
-        assert d.verdict == case.effect  # named on the calibrated model's residual too
-        assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
+    assert before > 2 * truth_nrmse, (before, truth_nrmse)
+    assert d.verdict == case.effect  # named on the calibrated model's residual too
+    assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
     if name == "cabin_heating":
-        # without the cabin the calibration takes its power up with the auxiliary base load
-        # (more than twice the truth's 4 kW); with it, the base load comes back within 10 %
+        # without the cabin the calibration takes its power up in the bus's own parameters
+        # (a pack more than 10 % smaller than the truth's); with it, the pack and the base
+        # load come back within 10 % of the truth's
+        pack_ah = truth.params[truth.param_index("rint_battery.cell_capacity_ah")]
+        pack = [r.values["rint_battery.cell_capacity_ah"] for r in d.ladder]
         base = [r.values["auxiliaries.base_power_w"] for r in d.ladder]
-        assert base[0] > 2 * 4000 and base[-1] == pytest.approx(4000, rel=0.1), base
+        assert pack[0] < 0.9 * pack_ah and pack[-1] == pytest.approx(pack_ah, rel=0.1), pack
+        assert base[-1] == pytest.approx(4000, rel=0.1), base
 
 
 def test_control_day_supports_no_missing_effect():
