@@ -119,22 +119,59 @@ def test_time_of_day_load_switches_at_a_standstill():
     assert aux[0] == 1500.0 and aux[-1] == 0.0
 
 
-def test_rebuild_soc_charges_at_rated_power_then_tapers_and_ends():
+def test_the_bus_pack_counts_charge_charges_to_the_stop_soc_and_caps_its_voltage():
+    """The pack around FASTSim's terminal power: its SoC falls by the counted charge, the
+    terminal power is FASTSim's draw less the charger's, the charger gives its rating times
+    its efficiency below the taper, then tapers and ends at the stop SoC."""
     n = 3600
+    base = nominal_base()
     charger_w = np.full(n, 300e3)
     charger_w[:5] = 0.0  # plugged in at 5 s
-    soc, session = fs.rebuild_soc(np.full(n, 5e3), charger_w, 200.0, 0.5, 0.9)
-    assert not session[:5].any() and session[5]
-    # constant power while below the taper: eta P dt / E per second, less the 5 kW drain
-    assert soc[10] - soc[9] == pytest.approx((fs.CHARGE_EFFICIENCY * 300e3 - 5e3) / 720e6)
+    drawn_w = np.full(n, 5e3)
+    pack = fs.rebuild_pack(drawn_w, charger_w, base, 0.5, 0.9)
+    soc, current, volts = pack["soc_frac"], pack["battery_current_a"], pack["battery_voltage_v"]
+    q_as = 3600.0 * fs.pack_capacity_ah(base["capacity_kwh"])
+    assert np.allclose(np.diff(soc), -current[1:] / q_as)
+    assert np.allclose(volts * current, drawn_w - pack["charger_in_w"], rtol=1e-9, atol=1e-6)
+    assert not pack["charging"][:5].any() and pack["charging"][5]
+    assert pack["charger_in_w"][10] == pytest.approx(fs.CHARGE_EFFICIENCY * 300e3)
+    assert current[10] < 0.0 < current[2]  # charging; drawing before the plug
+    # a resistance: the voltage rises under charge and falls under load, about the OCV
+    ocv = fs.PACK_CELLS * fs.ocv_cell_v("LFP", soc[9])
+    assert volts[10] == pytest.approx(ocv - base["pack_r_ohm"] * current[10], rel=1e-4)
     assert soc.max() <= 0.9
-    # the session ends near the stop SoC and stays ended while the bus stands there
-    end = int(np.flatnonzero(session)[-1]) + 1
-    assert end < n - 1 and not session[end:].any()
+    end = int(np.flatnonzero(pack["charging"])[-1]) + 1
+    assert end < n - 1 and not pack["charging"][end:].any()
     assert soc[end - 1] > 0.9 - fs.TAPER_FRAC * fs.END_OF_CHARGE_FRAC
     assert np.all(np.diff(soc[end:]) < 0.0)
-    drained, none = fs.rebuild_soc(np.full(n, 7.2e4), np.zeros(n), 200.0, 0.9, 0.9)
-    assert drained[-1] == pytest.approx(0.9 - (n - 1) * 7.2e4 / 720e6) and not none.any()
+
+
+def test_the_bus_packs_charge_current_stops_at_the_cells_charge_voltage():
+    """A 450 kW charger on a pack with a high resistance near its stop SoC: the BMS caps the
+    current where the cells reach 3.65 V; a drawn power the pack cannot give is an error."""
+    n = 200
+    base = {**nominal_base(), "pack_r_ohm": 0.25}
+    pack = fs.rebuild_pack(np.zeros(n), np.full(n, 450e3), base, 0.80, 0.95)
+    v_max = fs.PACK_CELLS * fs.PACKS["LFP"]["cell_v_max"]
+    on = pack["charging"] == 1
+    assert on[1:].all() and pack["battery_voltage_v"][on].max() == pytest.approx(v_max)
+    assert (pack["charger_in_w"][on] < fs.CHARGE_EFFICIENCY * 450e3).all()
+    with pytest.raises(RuntimeError, match="more than the pack can give"):
+        fs.rebuild_pack(np.full(n, 5e6), np.zeros(n), base, 0.5, 0.9)
+
+
+def test_under_inflated_tyres_roll_harder_from_their_day_and_log_a_force():
+    """The FASTSim bus's tyre fault: its rolling-resistance power rises by the drawn share,
+    and the truth's force power is that extra, in the driving modes."""
+    plan = route_day(np.random.default_rng(5), 0.5, 8.0, "rt44", climate="mild")
+    base = nominal_base()
+    normal = fs.simulate(plan, base, None, {})
+    soft = fs.simulate(plan, base, "underinflated_tyres", {"rolling_rise_frac": 0.2})
+    moving = normal["rolling_w"] > 0.0
+    assert soft["rolling_w"][moving].sum() / normal["rolling_w"][moving].sum() == \
+        pytest.approx(1.2, rel=0.02)
+    assert soft["p_force_w"].sum() == pytest.approx(soft["rolling_w"].sum() / 6.0, rel=1e-9)
+    assert day_energy_kwh(soft) > day_energy_kwh(normal)
 
 
 def test_cases_are_the_truthsim_days_fastsim_can_express():
@@ -159,6 +196,11 @@ def test_generate_is_byte_reproducible():
     assert truth_a["source"] == "fastsim" and truth_a["expected_verdict"] == "cabin_hvac"
     assert set(log_a.columns) >= {"timestamp", "speed_kmh", "soc_pct", "ambient_degc"}
     assert "passengers" not in log_a.columns and "altitude_m" not in log_a.columns
+    assert "battery_current_a" not in log_a.columns  # a SoC-only log unless asked
+    bms, truth_bms = fs.generate(case, current_voltage=True)
+    pd.testing.assert_frame_equal(bms[log_a.columns], log_a)
+    assert {"battery_current_a", "battery_voltage_v"} <= set(bms.columns)
+    assert truth_bms["chemistry"] == "LFP" and str(log_a["timestamp"].iloc[0]).endswith("-08:00")
     assert 100.0 <= truth_a["strength"]["cabin_hvac.ua_w_per_k"] <= 1500.0
     assert truth_a["summary"]["hidden_kwh"] > 0.0
     assert truth_a["summary"]["soc_footprint_pct"] > 0.0  # the heater draws on the pack

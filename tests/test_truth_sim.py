@@ -37,8 +37,10 @@ def flat_plan(seconds: int, speed_mps: float = 0.0, *, charging: bool = False,
 
 
 def test_nothing_under_benchmarks_truth_imports_ebus_env():
-    files = sorted(TRUTH_DIR.glob("*.py"))
-    assert len(files) >= 6
+    """The truth sources are simulators of their own: none imports the model under test (the
+    bench's runner, ``bench.py``, diagnoses their days with it)."""
+    files = sorted(f for f in TRUTH_DIR.glob("*.py") if f.name != "bench.py")
+    assert len(files) >= 7
     for path in files:
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.Import):
@@ -49,8 +51,8 @@ def test_nothing_under_benchmarks_truth_imports_ebus_env():
                 continue
             assert not any(n.split(".")[0] == "ebus_env" for n in names), path.name
     # nor at run time, through another module
-    code = ("import sys, benchmarks.truth.cases, benchmarks.truth.sim; "
-            "print('ebus_env' in sys.modules)")
+    code = ("import sys, benchmarks.truth.cases, benchmarks.truth.sim, "
+            "benchmarks.truth.backward_source; print('ebus_env' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           cwd=TRUTH_DIR.parents[1], check=True)
     assert done.stdout.strip() == "False"
@@ -166,7 +168,8 @@ def test_degraded_log_is_one_hertz_and_quantised(hilly_day):
     log = degrade(clean, np.random.default_rng(3))
     stamps = pd.to_datetime(log["timestamp"])
     assert (stamps.diff().dropna() == pd.Timedelta(seconds=1)).all()
-    assert stamps.iloc[0] == pd.Timestamp("2025-05-01 07:00:00")
+    # King County's local time, with its summer offset
+    assert log["timestamp"].iloc[0] == "2025-05-01T07:00:00-07:00"
     steps = log["soc_pct"] / SOC_STEP_PCT
     assert np.allclose(steps, np.round(steps), atol=1e-9)
     assert np.abs(log["soc_pct"] - 100.0 * tr["soc_frac"]).max() < 3.0
@@ -188,7 +191,8 @@ def test_a_bms_log_adds_current_and_voltage_and_leaves_the_rest_unchanged(hilly_
     _, _, tr = hilly_day
     clean = tr[["time_s", "clock_h", "speed_mps", "soc_frac", "ambient_degc", "charging",
                 "charger_kw", "door_open", "battery_current_a", "battery_voltage_v"]].copy()
-    clean.attrs["date"] = "2025-05-01"
+    clean.attrs.update(date="2025-05-01", capacity_ah=nominal("NMC")["capacity_ah"],
+                       chemistry="NMC")
     soc_only = degrade(clean, np.random.default_rng(3))
     bms = degrade(clean, np.random.default_rng(3), current_voltage=True)
     pd.testing.assert_frame_equal(bms[soc_only.columns], soc_only)
@@ -198,6 +202,49 @@ def test_a_bms_log_adds_current_and_voltage_and_leaves_the_rest_unchanged(hilly_
     assert 0.3 < np.std(current - (gain * true_a + offset)) < 0.7  # 0.5 A rms and 0.1 A steps
     volts = bms["battery_voltage_v"].to_numpy() / tr["battery_voltage_v"].to_numpy()
     assert np.abs(volts - 1.0).max() < 0.005
+    # the BMS counts that same sensor's current: its SoC moves as the logged current says
+    counted = -np.cumsum(current) / (3600.0 * nominal("NMC")["capacity_ah"]) * 100.0
+    moved = bms["soc_pct"].to_numpy() - bms["soc_pct"].iloc[0]
+    assert np.abs(moved - (counted - counted[0])).max() < 0.1 + 0.015 * np.ptp(counted)
+
+
+def test_the_bms_soc_drifts_with_its_sensor_and_is_pulled_back_at_rest():
+    """Coulomb counting of the sensed current: with the sensor's offset the estimate drifts
+    by offset x time / capacity; after ``REST_S`` at rest the BMS reads the OCV again and the
+    estimate returns to the truth; a charge that reaches the top resets it too."""
+    from benchmarks.truth import degrade as dg
+
+    n = 7200
+    capacity_ah = 300.0
+    true_a = np.concatenate((np.full(3600, 60.0), np.zeros(3600)))  # 1 h at 60 A, then rest
+    soc = 0.8 - np.concatenate(([0.0], np.cumsum(true_a[:-1]))) / (3600.0 * capacity_ah)
+    sensed = true_a + np.where(np.arange(n) < 3600, 3.0, 0.0)  # a 3 A offset, the first hour
+    rng = np.random.default_rng(1)
+    est = dg.bms_soc_pct(soc, rng, sensed, true_a, capacity_ah, "NMC")
+    start_error = est[0] - 100.0 * soc[0]
+    # an hour in: the offset's drift, 3 A h of 300 A h = 1 point, beyond the gain's share
+    drift = (est[3599] - 100.0 * soc[3599]) - start_error
+    assert -1.0 - 0.015 * 20.0 - 0.1 < drift < -1.0 + 0.015 * 20.0 + 0.1
+    # 20 min of rest, then the OCV reading pulls it back within a few of its time constants
+    assert abs(est[3600 + int(dg.REST_S) - 10] - est[3599]) <= 0.1  # not before the rest
+    assert abs(est[-1] - 100.0 * soc[-1]) < 0.1 + 3 * dg.START_ERROR_PCT["NMC"]
+    assert abs((est[-1] - 100.0 * soc[-1]) - (est[3599] - 100.0 * soc[3599])) > 0.5
+    # without the offset and gain error the count follows the truth exactly
+    exact = dg.bms_soc_pct(soc, np.random.default_rng(1), true_a, true_a, capacity_ah / (
+        1.0 + np.random.default_rng(1).uniform(-0.015, 0.015)), "NMC")
+    steps = np.diff(exact[:3600])
+    assert np.abs(np.cumsum(steps) - 100.0 * (soc[1:3600] - soc[0])).max() <= 0.1
+
+
+def test_time_stamps_carry_the_local_offset_and_refuse_a_clock_change():
+    from benchmarks.truth.degrade import time_stamps
+
+    winter = time_stamps("2025-12-01", np.array([7.0, 23.999]), "America/Los_Angeles")
+    assert list(winter) == ["2025-12-01T07:00:00-08:00", "2025-12-01T23:59:56-08:00"]
+    assert time_stamps("2025-06-01", np.array([25.0]), "America/Los_Angeles")[0] == \
+        "2025-06-02T01:00:00-07:00"  # after midnight: the next date
+    with pytest.raises(ValueError):  # 02:30 does not exist on the spring-forward day
+        time_stamps("2025-03-09", np.array([2.5]), "America/Los_Angeles")
 
 
 def test_a_reference_day_is_a_normal_day_of_the_same_bus():
@@ -345,3 +392,139 @@ def test_each_hidden_effect_costs_energy_where_it_should(hidden):
     if hidden == "regen_soc_limit":
         assert truth["summary"]["soc_max_pct"] > truth["strength"][
             "regen_soc_limit.derate_soc_pct"]
+
+
+def test_a_cold_nearly_empty_pack_holds_its_voltage_floor_and_the_bus_is_slower():
+    """The voltage window: a cold NMC pack at 12 % SoC cannot give the traction a warm one
+    gives; the BMS derates traction so the cells stay at 2.8 V, the bus accelerates less and
+    reaches its speed later, and the trace says so (``derated``, ``p_discharge_max_w``)."""
+    base = nominal("NMC")
+    base["r0_ohm"] *= 1.5
+    base["r1_ohm"] *= 1.5
+    plan = flat_plan(120, 15.0, ramp_s=15.0)
+    cold_ph = {"pack_temp0_degc": -15.0, "pack_heat_capacity_j_per_k": 1.8e6,
+               "pack_ha_w_per_k": 100.0}
+    warm = simulate(plan, base, None, soc0_frac=0.12)
+    cold = simulate(plan, base, "cold_battery", cold_ph, soc0_frac=0.12)
+    floor_v = base["cells_series"] * base["cell_v_min"]
+    assert warm["derated"].sum() == 0 and cold["derated"].sum() > 5
+    assert cold["battery_voltage_v"].min() >= floor_v - 1e-6
+    assert cold["battery_voltage_v"].min() == pytest.approx(floor_v, abs=0.5)  # at the floor
+    assert (cold["p_battery_w"] <= cold["p_discharge_max_w"] + 1.0).all()
+    assert cold["speed_mps"].iloc[15] < warm["speed_mps"].iloc[15] - 1.0
+    assert cold["distance_m"].iloc[-1] < warm["distance_m"].iloc[-1]
+    # the floor is the power at which V_t = V_min: V_min (E - V_min) / R_0
+    row = cold[cold["derated"] == 1].iloc[0]
+    assert row["p_discharge_max_w"] < 200e3
+
+
+def test_the_lfp_floor_is_lower_at_or_below_freezing():
+    from benchmarks.truth.sim import cell_v_min
+
+    lfp, nmc = nominal("LFP"), nominal("NMC")
+    assert (cell_v_min(lfp, 5.0), cell_v_min(lfp, 0.0), cell_v_min(lfp, -10.0)) == (2.5, 2.0, 2.0)
+    assert cell_v_min(nmc, -10.0) == cell_v_min(nmc, 25.0) == 2.8
+
+
+def test_charge_and_regeneration_keep_the_cells_at_or_below_their_charge_voltage():
+    """A 450 kW charger on a high-resistance pack near its top, and braking from speed on a
+    nearly full pack: the current is capped so the terminal voltage never passes V_max."""
+    for chemistry in ("LFP", "NMC"):
+        base = nominal(chemistry)
+        base["r0_ohm"] *= 1.5
+        v_max = base["cells_series"] * base["cell_v_max"]
+        charged = simulate(flat_plan(600, charging=True, charger_kw=450.0), base,
+                           soc0_frac=0.93, charge_stop_frac=0.99)
+        assert charged["battery_voltage_v"].max() <= v_max + 1e-6
+        assert charged["cv_phase"].sum() > 0  # the voltage, not the charger, set the current
+        assert (charged["p_charger_w"] < 450e3 - 1.0).any()
+        t = np.arange(200, dtype=float)
+        plan = flat_plan(200)
+        plan["speed_target_mps"] = np.clip(15.0 - np.maximum(t - 60.0, 0.0) * 0.8, 0.0, 15.0) \
+            * np.clip(t / 30.0, 0.0, 1.0)
+        braked = simulate(plan, base, soc0_frac=0.985)
+        assert braked["battery_voltage_v"].max() <= v_max + 1e-6
+        assert braked["e_friction_j"].iloc[-1] > 0.0
+
+
+def test_a_dragging_brake_costs_energy_after_each_application_and_closes_the_balance():
+    """The sticking caliper: its drag is largest right after a brake application and fades
+    with distance; the wheel's energy balance closes with the drag's work as a term of its
+    own; the truth's mode shares read its power in the driving modes."""
+    plan = route_day(np.random.default_rng(4), 1.0, 9.0, "rt44")
+    base = nominal("LFP")
+    ph = {"residual_n": 600.0, "fade_m": 300.0, "floor_n": 50.0}
+    free = simulate(plan, base)
+    drag = simulate(plan, base, "dragging_brake", ph)
+    end = drag.iloc[-1]
+    wheel = end["e_road_j"] + end["e_grade_j"] + end["e_friction_j"] + end["e_kinetic_j"] \
+        + end["e_force_j"]
+    assert end["e_wheel_j"] == pytest.approx(wheel, rel=1e-9, abs=1.0)
+    assert end["e_force_j"] > 0.5 * 50.0 * end["distance_m"]  # at least half the floor's work
+    assert end["e_force_j"] < (600.0 + 50.0) * end["distance_m"]
+    assert drag["e_drive_dc_j"].iloc[-1] > free["e_drive_dc_j"].iloc[-1]
+    # at most the residual and floor times the step's mean speed (at most 0.4 m/s above the
+    # sampled one: 1.6 m/s^2 over half a step)
+    assert (drag["p_force_w"] <= 650.0 * (drag["speed_mps"] + 0.4) + 1e-6).all()
+    assert (drag["p_force_w"] >= 0.0).all()
+    assert (drag["p_force_w"][drag["speed_mps"] == 0.0] == 0.0).all()
+
+
+def test_a_weak_cell_group_makes_the_soc_swing_wider():
+    """The capacity step: the same charge drawn from 12 % less capacity moves the SoC 1/0.88
+    times as far, at 20 % more resistance."""
+    base = nominal("LFP")
+    plan = flat_plan(1800, 10.0, ramp_s=30.0)
+    healthy = simulate(plan, base, soc0_frac=0.7)
+    weak = simulate(plan, base, "capacity_step",
+                    {"capacity_loss_frac": 0.12, "resistance_growth_frac": 0.2}, soc0_frac=0.7)
+    drop_h = 0.7 - healthy["soc_frac"].iloc[-1]
+    drop_w = 0.7 - weak["soc_frac"].iloc[-1]
+    assert drop_w / drop_h == pytest.approx(1.0 / 0.88, rel=0.01)
+    assert weak["e_battery_loss_j"].iloc[-1] > 1.15 * healthy["e_battery_loss_j"].iloc[-1]
+
+
+def test_a_multi_day_bus_keeps_its_bus_and_changes_on_its_start_day():
+    """A fault that starts on a day: the bus's days share its base draw and the fault's
+    values; before the start day the fault does not act; the days have distinct dates over
+    a winter, their weather spread from mild to freezing; the bus's truth names its start."""
+    bus = next(b for b in truth_cases.buses(1, 0) if b.condition == "regen_soc_limit")
+    days = truth_cases.bus_days(bus)
+    assert len(days) == truth_cases.DAYS_PER_BUS and bus.start_day in truth_cases.START_DAYS
+    assert [d.active for d in days] == [k >= bus.start_day for k in range(len(days))]
+    dates = [d.date for d in days]
+    assert dates == sorted(dates) and len(set(dates)) == len(dates)
+    assert dates[0] >= "2025-11-03" and dates[-1] <= "2026-02-28"
+    short = [dataclasses.replace(d, hours=0.3) for d in days]
+    runs = [truth_cases.day_trace(d) for d in short]
+    preview = "driver_preview_s"
+    bases = [{k: v for k, v in r[1].items() if k != preview} for r in runs]
+    assert all(b == bases[0] for b in bases)
+    assert len({r[2]["derate_soc_frac"] for r in runs}) == 1
+    records = [truth_cases.generate(d)[1] for d in short]
+    assert [r["expected_verdict"] for r in records] == \
+        [None if k < bus.start_day else "regen_soc_limit" for k in range(len(days))]
+    assert [r["date"] for r in records] == dates
+    truth = truth_cases.bus_truth(bus, records)
+    assert truth["start_day"] == bus.start_day and truth["start_date"] == dates[bus.start_day]
+    assert truth["expected_verdict"] == "regen_soc_limit" and truth["kind"] == "from_day"
+    assert sum(truth["day_effect_kwh"][:bus.start_day]) == 0.0
+
+
+def test_the_multi_day_buses_cover_every_condition_and_spread_the_weather():
+    buses = truth_cases.buses()
+    counts = pd.Series([b.condition or "control" for b in buses]).value_counts()
+    assert (counts.drop("control") == 5).all() and counts["control"] == 4
+    assert set(counts.index) - {"control"} == set(truth_cases.MULTI_DAY)
+    assert len({b.seed for b in buses}) == len(buses)
+    for b in buses:
+        kind = truth_cases.MULTI_DAY[b.condition][1] if b.condition else None
+        assert (b.start_day is not None) == (kind == "from_day")
+    # a heating bus's days: the ambient spreads over more than 8 K (mild to freezing)
+    heating = next(b for b in buses if b.condition == "cabin_heating")
+    plans = [route_day(np.random.default_rng(truth_cases._streams(d)[0]), 1.0, d.start_clock_h,
+                       d.route, climate=d.climate, date=d.date)
+             for d in truth_cases.bus_days(heating)]
+    means = [p["ambient_degc"].mean() for p in plans]
+    assert max(means) - min(means) > 8.0
+    assert [p.attrs["date"] for p in plans] == [d.date for d in truth_cases.bus_days(heating)]

@@ -42,7 +42,8 @@ ROUTES = {
     "rt44": ("rt44_sh11044004_d0.csv", "rt44_sh11044004_d1.csv"),
     "rt45": ("rt45_sh31045010_d0.csv", "rt45_sh31045010_d1.csv"),
 }
-CLIMATES = ("cold", "mild", "hot")
+CLIMATES = ("cold", "mild", "hot", "season")
+TIMEZONE = "America/Los_Angeles"  # King County's local time, the logs' UTC offset
 GRID_M = 2.0  # distance step of the speed profile
 MAX_GRADE_FRAC = 0.10
 CAPACITY_PASSENGERS = 85  # a 12 m bus: about 30 seated + 55 standing
@@ -60,6 +61,10 @@ _SEASONS = {
              "mean_degc": (9.0, 18.0), "swing_k": (3.0, 6.0)},
     "hot": {"months": (7, 8), "sun_h": (5.5, 20.8), "peak_w_per_m2": 880.0,
             "mean_degc": (25.0, 31.0), "swing_k": (4.0, 7.0)},
+    # the days of a multi-day bus, November to February: each day's weather drawn on its
+    # own from a mild autumn day to a hard frost (Seattle's daily means span about this)
+    "season": {"months": (11, 12, 1, 2), "sun_h": (7.6, 16.7), "peak_w_per_m2": 320.0,
+               "mean_degc": (-8.0, 14.0), "swing_k": (2.0, 6.0)},
 }
 
 
@@ -191,7 +196,8 @@ def solar_profile(rng: np.random.Generator, clock_h: np.ndarray, climate: str) -
 def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
               route: str | None = None, *, climate: str = "mild",
               charger_kw: float | None = None,
-              charger_terminals: tuple[int, ...] | None = None) -> pd.DataFrame:
+              charger_terminals: tuple[int, ...] | None = None,
+              date: str | None = None) -> pd.DataFrame:
     """The driving plan of one service day, at 1 Hz.
 
     Parameters
@@ -200,10 +206,13 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
     hours : length of the day [h].
     start_clock_h : clock time of the first sample [h].
     route : ``"rt7"``, ``"rt44"`` or ``"rt45"``; drawn when None.
-    climate : ``"cold"`` (winter), ``"mild"`` (spring/autumn) or ``"hot"`` (summer).
+    climate : ``"cold"`` (winter), ``"mild"`` (spring/autumn), ``"hot"`` (summer) or
+        ``"season"`` (a day from November to February, mild to freezing).
     charger_kw : rated power of the terminal chargers [kW]; drawn from 150/300/450 when None.
     charger_terminals : terminals with a charger, ``(0,)`` (where leg 0 starts), ``(1,)`` or
         ``(0, 1)``; drawn when None. Giving either changes nothing else in the day.
+    date : the service date (``YYYY-MM-DD``); drawn in the climate's months when None.
+        Giving it changes nothing else in the day.
 
     Returns
     -------
@@ -211,8 +220,8 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
     ``grade_frac`` and ``altitude_m`` of the road under the planned position,
     ``door_open``/``charging`` flags, ``charger_kw`` (rated power while charging, else 0),
     ``passengers`` on board, ``distance_m`` along the day and ``leg`` (0, 1, ... one per
-    direction; -1 on layovers). ``attrs`` hold ``date``, ``route``, ``climate``,
-    ``charger_kw`` and ``charger_terminals``.
+    direction; -1 on layovers). ``attrs`` hold ``date``, ``timezone``, ``route``,
+    ``climate``, ``charger_kw`` and ``charger_terminals``.
     """
     if climate not in CLIMATES:
         raise ValueError(f"climate {climate!r} is not one of {CLIMATES}")
@@ -222,7 +231,8 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
     legs = [load_leg(f) for f in ROUTES[route]]
     season = _SEASONS[climate]
     month = int(rng.choice(season["months"]))
-    date = pd.Timestamp(year=2025, month=month, day=int(rng.integers(1, 29)))
+    drawn_date = pd.Timestamp(year=2025, month=month, day=int(rng.integers(1, 29)))
+    date = pd.Timestamp(date) if date is not None else drawn_date
     drawn_kw = float(rng.choice([150.0, 300.0, 450.0]))
     drawn_terminals = (0, 1) if rng.random() < 0.4 else (0,)
     charger_kw = float(charger_kw) if charger_kw is not None else drawn_kw
@@ -291,6 +301,6 @@ def route_day(rng: np.random.Generator, hours: float, start_clock_h: float,
         "distance_m": cat["s"],
         "leg": cat["leg"].astype(int),
     })
-    plan.attrs.update(date=str(date.date()), route=route, climate=climate,
+    plan.attrs.update(date=str(date.date()), timezone=TIMEZONE, route=route, climate=climate,
                       charger_kw=charger_kw, charger_terminals=list(terminals))
     return plan

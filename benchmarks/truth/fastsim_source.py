@@ -22,27 +22,34 @@ How a day is made
    a chain of FASTSim runs cut at standstill samples where the mass or load changes.
 4. FASTSim 3.1 starts every run at the pack's ``max_soc`` and does not charge at standstill
    (a cycle's ``pwr_max_chrg_watts`` had no effect on the pack in 3.1.0). So FASTSim's pack is
-   a large energy meter: its energy out per step is taken from its SoC history, and the logged
-   SoC of the bus's real pack (capacity ``capacity_kwh``) is rebuilt from it, with the plan's
-   opportunity charging added at layovers by this module (:func:`rebuild_soc`): the rated
-   power times a charge efficiency, tapering linearly towards the day's stop SoC, where the
-   session ends.
+   a large energy meter, and the bus's own pack is added around FASTSim's electrical power at
+   the pack terminals (what the motor, auxiliaries and HVAC draw, second by second) by this
+   module (:func:`rebuild_pack`): an LFP pack of 200 cells in series with an OCV curve (the
+   truth simulator's LFP cell table) and one resistance, its SoC counted in charge, with the
+   plan's opportunity charging added at layovers: the rated power times a charge efficiency,
+   tapering linearly towards the day's stop SoC, where the session ends, the charge current
+   capped so the cells stay at or below 3.65 V. This gives the BMS log its pack current and
+   voltage.
    A whole-day run starts with a 10 min pre-trip standstill (auxiliaries and HVAC on, dropped
    from the log): a run that starts at ``max_soc`` would otherwise refuse regeneration above
    it on a downhill start. A run whose FASTSim pack returns to full raises an error.
 5. The clean trace goes through :func:`benchmarks.truth.degrade.degrade`.
 
 FASTSim's pack efficiency is constant, so the capacity of its energy meter does not change the
-physics; the bus's pack has no chemistry (``chemistry: None`` in the truth record).
+physics. FASTSim 3.1's pack has no voltage: its limits are one power limit both ways
+(``pwr_out_max_watts``, flat over SoC) and a hard SoC window (``min_soc``, ``max_soc``: a run
+that reaches it stops with an error). It therefore has no voltage window; the bus's pack added
+here has one (LFP 2.5-3.65 V per cell, as in ``vehicles.py``), enforced on the charger's
+current and checked on what FASTSim drives: a day whose traction or regeneration would take the
+cells outside it raises an error (no day of the bench comes near: FASTSim's powers are at most
+about 250 kW on a pack of about 650 V).
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
-import json
-import time
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -52,6 +59,8 @@ import pandas as pd
 from benchmarks.truth import cases as truthsim
 from benchmarks.truth.days import route_day
 from benchmarks.truth.degrade import degrade, effect_load_kw
+from benchmarks.truth.sim import OCV_TABLES, ocv_cell_v
+from benchmarks.truth.vehicles import PACKS
 
 try:
     import fastsim
@@ -76,7 +85,13 @@ NOMINAL = {
     "motor_kw": 200.0,
     "capacity_kwh": 200.0,
     "drivetrain_efficiency": 0.94,  # gearbox and final drive, on top of FASTSim's motor map
+    "pack_r_ohm": 0.09,  # the bus's pack around FASTSim's (below)
 }
+# The bus's pack around FASTSim's terminal power: 200 LFP cells in series (~650 V), the truth
+# simulator's LFP OCV table, one resistance R (0.06-0.12 ohm: the 10-s resistance of a 200 kWh
+# LFP bus pack, as in vehicles.PACKS), the cells' voltage window of vehicles.PACKS
+PACK_CELLS = 200
+PACK_CHEMISTRY = "LFP"
 WHEEL_RADIUS_M = 0.48
 WHEEL_INERTIA_KG_M2 = 15.0  # assumed: a 22.5" wheel with tyre, ~100 kg at ~0.4 m gyration
 # FASTSim 3.1.0 raises an error (instead of blending friction brakes) when a braking step asks
@@ -101,6 +116,16 @@ FASTSIM_CABIN_W_PER_K = 315.0
 # the hidden effects FASTSim's own models express (names, verdicts and climates as in cases.py)
 HIDDEN = ("road_grade", "cabin_heating", "cabin_cooling", "passenger_mass", "aux_schedule")
 HVAC_EFFECTS = ("cabin_heating", "cabin_cooling")
+# the multi-day buses' conditions FASTSim expresses: (library effect to name, how it acts);
+# under-inflated tyres raise FASTSim's own rolling-resistance coefficient, a force the library
+# has no effect for (its rolling coefficient is a bus-to-bus value, not a change on a day)
+MULTI_DAY = {
+    "cabin_heating": ("cabin_hvac", "weather"),
+    "aux_schedule": ("aux_schedule", "from_day"),
+    "capacity_step": ("static_rcd", "from_day"),
+    "underinflated_tyres": ("outside_library", "from_day"),
+}
+VERDICTS = {"underinflated_tyres": "outside_library"}
 
 
 def require_fastsim() -> None:
@@ -128,6 +153,7 @@ def draw_base(rng: np.random.Generator) -> dict:
         "aux_base_w": rng.uniform(2000.0, 9000.0),
         "capacity_kwh": NOMINAL["capacity_kwh"] * rng.uniform(0.9, 1.1),
         "motor_kw": NOMINAL["motor_kw"],
+        "pack_r_ohm": rng.uniform(0.06, 0.12),
     }
 
 
@@ -261,6 +287,7 @@ _HISTORY = {
     "cabin_from_ambient_w": "veh.cabin.LumpedCabin.history.pwr_thrml_from_amb_watts",
     "hvac_elec_w": "veh.hvac.LumpedCabin.history.pwr_aux_for_hvac_watts",
     "hvac_thermal_w": "veh.hvac.LumpedCabin.history.pwr_thrml_hvac_to_cabin_watts",
+    "elec_out_w": "veh.pt_type.BEV.res.history.pwr_out_electrical_watts",
 }
 
 
@@ -288,32 +315,69 @@ def run_fastsim(veh: dict, speed_mps, grade_frac, ambient_degc, solar_w, altitud
     return out
 
 
-def rebuild_soc(energy_out_j: np.ndarray, charger_w: np.ndarray, capacity_kwh: float,
-                start_soc_frac: float, stop_soc_frac: float,
-                dt_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """SoC of the bus's pack [1] and the charging-session flag, from the energy FASTSim's pack
-    gave out per step [J] and the rated power of the charger the bus stands under [W] (0 off
-    a charger).
+def pack_capacity_ah(capacity_kwh: float) -> float:
+    """The bus pack's charge capacity [Ah]: its energy over its nominal voltage, the mean OCV
+    of the cells between 10 and 90 % SoC times the cells in series."""
+    soc = np.linspace(0.1, 0.9, 81)
+    nominal_v = PACK_CELLS * float(np.mean([ocv_cell_v(PACK_CHEMISTRY, x) for x in soc]))
+    return capacity_kwh * 1e3 / nominal_v
 
-    ``SoC_k = SoC_{k-1} - E_out,k / E_cap + eta_c P_c f(SoC_{k-1}) dt / E_cap`` with
-    ``f = clip((SoC_stop - SoC) / TAPER, 0, 1)``: full power up to ``TAPER`` below the
-    session's stop SoC, then a linear taper (the constant-voltage phase). The session ends
-    when ``f`` falls below ``END_OF_CHARGE_FRAC`` (the end-of-charge current) and stays ended
-    until the bus leaves the charger.
+
+def rebuild_pack(elec_out_w: np.ndarray, charger_w: np.ndarray, base: dict,
+                 start_soc_frac: float, stop_soc_frac: float, capacity_factor: float = 1.0,
+                 resistance_factor: float = 1.0, dt_s: float = 1.0) -> dict[str, np.ndarray]:
+    """The bus's pack around FASTSim's terminal power: SoC [1], charging-session flag, current
+    [A] (> 0 discharging) and terminal voltage [V], second by second.
+
+    Per step, with ``E = N OCV(SoC)`` and the pack's resistance ``R``::
+
+        P_t = P_elec - P_in,   I = (E - sqrt(E^2 - 4 R P_t)) / (2 R),   V = E - R I
+        SoC_k = SoC_{k-1} - I dt / (3600 Q)
+
+    ``P_elec`` is FASTSim's electrical power out of its pack (``elec_out_w``) and ``P_in`` the
+    charger's power into the bus's pack: ``eta_c P_c f(SoC)`` with ``f = clip((SoC_stop -
+    SoC) / TAPER, 0, 1)`` (full power up to ``TAPER`` below the session's stop SoC, then a
+    linear taper), the current capped at ``(N V_max - E) / R`` (the cells' charge voltage),
+    the session ended when ``f`` falls below ``END_OF_CHARGE_FRAC`` and until the bus leaves
+    the charger. ``capacity_factor`` and ``resistance_factor`` scale the pack's capacity and
+    resistance (a weak cell group). Raises where FASTSim's own power takes the cells outside
+    their voltage window (FASTSim has none: see the module docstring).
     """
-    e_cap_j = capacity_kwh * 3.6e6
-    soc = np.empty(len(energy_out_j))
-    session = np.zeros(len(energy_out_j), dtype=np.int8)
-    soc[0] = start_soc_frac
+    pack = PACKS[PACK_CHEMISTRY]
+    n = len(elec_out_w)
+    q_as = 3600.0 * pack_capacity_ah(base["capacity_kwh"]) * capacity_factor
+    r_ohm = base["pack_r_ohm"] * resistance_factor
+    v_max, v_min = PACK_CELLS * pack["cell_v_max"], PACK_CELLS * pack["cell_v_min"]
+    ocv_x, ocv_y = (np.asarray(a) for a in OCV_TABLES[PACK_CHEMISTRY])
+    out = {k: np.zeros(n) for k in ("soc_frac", "charging", "battery_current_a",
+                                    "battery_voltage_v", "charger_in_w")}
+    soc = start_soc_frac
     ended = False
-    for k in range(1, len(soc)):
-        taper = min(max((stop_soc_frac - soc[k - 1]) / TAPER_FRAC, 0.0), 1.0)
+    for k in range(n):
+        emf = PACK_CELLS * float(np.interp(soc, ocv_x, ocv_y))
+        taper = min(max((stop_soc_frac - soc) / TAPER_FRAC, 0.0), 1.0)
         ended = charger_w[k] > 0.0 and (ended or taper < END_OF_CHARGE_FRAC)
-        on = charger_w[k] > 0.0 and not ended
-        session[k] = on
-        soc[k] = (soc[k - 1] - energy_out_j[k] / e_cap_j
-                  + (CHARGE_EFFICIENCY * charger_w[k] * taper * dt_s / e_cap_j if on else 0.0))
-    return soc, session
+        on = k > 0 and charger_w[k] > 0.0 and not ended
+        p_t = elec_out_w[k] - (CHARGE_EFFICIENCY * charger_w[k] * taper if on else 0.0)
+        disc = emf * emf - 4.0 * r_ohm * p_t
+        if disc < 0.0:
+            raise RuntimeError(f"row {k}: {p_t / 1e3:.0f} kW is more than the pack can give")
+        current = (emf - np.sqrt(disc)) / (2.0 * r_ohm)
+        if on:  # the BMS caps the charge current at the cells' charge voltage
+            current = max(current, -(v_max - emf) / r_ohm)
+        volts = emf - r_ohm * current
+        if not v_min - 1e-6 <= volts <= v_max + 1e-6:
+            raise RuntimeError(f"row {k}: the pack at {volts / PACK_CELLS:.3f} V per cell, "
+                               f"outside the cells' {pack['cell_v_min']}-{pack['cell_v_max']} V")
+        if k:
+            soc -= current * dt_s / q_as
+        out["soc_frac"][k] = soc
+        out["charging"][k] = on
+        out["battery_current_a"][k] = current
+        out["battery_voltage_v"][k] = volts
+        out["charger_in_w"][k] = elec_out_w[k] - volts * current if on else 0.0
+    out["charging"] = out["charging"].astype(np.int8)
+    return out
 
 
 def _pieces(speed_mps: np.ndarray, *piecewise: np.ndarray) -> list[tuple[int, int]]:
@@ -349,10 +413,12 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
              soc0_frac: float = 0.8, charge_stop_frac: float = 0.9) -> pd.DataFrame:
     """Clean truth trace of one day (1 Hz): plan + base parameters + hidden effect.
 
-    Returns ``time_s, clock_h, speed_mps, soc_frac, ambient_degc, plugged`` (under a
-    charger), ``charging, charger_kw`` (while a session runs), ``door_open, altitude_m,
-    passengers`` plus ``energy_out_j`` (FASTSim's pack energy out per
-    step), ``distance_m``, ``aux_w``, ``p_hidden_w`` (a hidden load), ``mass_kg`` and, on HVAC days,
+    Returns ``time_s, clock_h, speed_mps, soc_frac, battery_current_a, battery_voltage_v,
+    ambient_degc, plugged`` (under a charger), ``charging, charger_kw`` (while a session
+    runs), ``door_open, altitude_m, passengers`` plus ``energy_out_j`` (FASTSim's electrical
+    energy out of its pack per step: what the bus draws at its pack's terminals),
+    ``distance_m``, ``aux_w``, ``p_hidden_w`` (a hidden load), ``p_force_w`` (a hidden
+    force's power at the wheel), ``rolling_w``, ``mass_kg`` and, on HVAC days,
     ``cabin_temp_degc``, ``hvac_elec_w``, ``hvac_thermal_w``, ``cabin_from_ambient_w``.
     """
     require_fastsim()
@@ -373,6 +439,8 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
         hidden_w = aux_schedule_w(plan["clock_h"].to_numpy(float), speed,
                                   effect["lights_off_h"], effect["lights_on_h"],
                                   effect["lights_w"])
+    rise = effect["rolling_rise_frac"] if hidden == "underinflated_tyres" else 0.0
+    run_base = {**base, "rolling_coef": base["rolling_coef"] * (1.0 + rise)}
     aux = base["aux_base_w"] + hidden_w
     pieces = _pieces(speed, mass, aux)
     pretrip = PRETRIP_S if len(pieces) == 1 else 0  # chained days are flat: see the docstring
@@ -380,7 +448,7 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
     cabin_temp = None
     for a, b in pieces:
         sl = slice(a, b + 1)
-        veh = bus_vehicle(base, mass[a], aux[a], hvac, cabin_temp)
+        veh = bus_vehicle(run_base, mass[a], aux[a], hvac, cabin_temp)
         run = run_fastsim(veh, speed[sl], grade[sl], ambient[sl], solar[sl], altitude[a],
                           pretrip)
         if hvac is not None:
@@ -391,26 +459,34 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
         [r["distance_m"] + off for r, off in
          zip(runs, np.cumsum([0.0] + [r["distance_m"][-1] for r in runs[:-1]]), strict=True)])
     charger_w = plan["charger_kw"].to_numpy(float) * 1e3 * plan["charging"].to_numpy(float)
-    soc, session = rebuild_soc(hist["energy_out_j"], charger_w, base["capacity_kwh"],
-                               soc0_frac, charge_stop_frac)
+    weak = hidden == "capacity_step"
+    pack = rebuild_pack(hist["elec_out_w"], charger_w, base, soc0_frac, charge_stop_frac,
+                        1.0 - effect["capacity_loss_frac"] if weak else 1.0,
+                        1.0 + effect["resistance_growth_frac"] if weak else 1.0)
     clean = pd.DataFrame({
         "time_s": plan["time_s"].to_numpy(float),
         "clock_h": plan["clock_h"].to_numpy(float),
         "speed_mps": hist["speed_mps"],
-        "soc_frac": soc,
+        "soc_frac": pack["soc_frac"],
+        "battery_current_a": pack["battery_current_a"],
+        "battery_voltage_v": pack["battery_voltage_v"],
         "ambient_degc": ambient,
         # as in the independent simulator: the logged session ends at the stop SoC, though
         # the bus may stay under the charger
         "plugged": plan["charging"].to_numpy(int),
-        "charging": session.astype(int),
-        "charger_kw": np.where(session == 1, charger_w / 1e3, 0.0),
+        "charging": pack["charging"].astype(int),
+        "charger_kw": np.where(pack["charging"] == 1, charger_w / 1e3, 0.0),
+        "charger_in_w": pack["charger_in_w"],
         "door_open": plan["door_open"].to_numpy(int),
         "altitude_m": altitude,
         "passengers": passengers,
-        "energy_out_j": hist["energy_out_j"],
+        "energy_out_j": hist["elec_out_w"],  # 1 s steps
         "distance_m": hist["distance_m"],
         "aux_w": aux,
         "p_hidden_w": hidden_w,
+        # the under-inflated tyres' share of FASTSim's rolling-resistance power
+        "p_force_w": hist["rolling_w"] * rise / (1.0 + rise),
+        "rolling_w": hist["rolling_w"],
         "mass_kg": mass,
     })
     if hvac is not None:
@@ -422,6 +498,21 @@ def simulate(plan: pd.DataFrame, base: dict, hidden: str | None, effect: dict,
     return clean
 
 
+def modes(clean: pd.DataFrame) -> np.ndarray:
+    """Operating mode of each row (index into ``cases.MODES``) from speed, acceleration and
+    the charging session: FASTSim's trace has no wheel force split, so a row accelerates at
+    more than 0.1 m/s^2 and brakes at less than -0.1 m/s^2 while moving; a charging row is CC
+    (FASTSim's pack has no CV phase of its own)."""
+    speed = clean["speed_mps"].to_numpy(float)
+    accel = np.gradient(speed)
+    mode = np.full(len(speed), 1)
+    mode[accel > 0.1] = 0
+    mode[(accel < -0.1) & (speed > 0.1)] = 2
+    mode[speed <= 0.1] = 3
+    mode[clean["charging"].to_numpy() == 1] = 4
+    return mode
+
+
 def consumption_kwh_per_km(clean: pd.DataFrame) -> float:
     """Energy the pack gave out over the day per distance driven [kWh/km] (charging excluded)."""
     return float(clean["energy_out_j"].sum() / 3.6e6 / (clean["distance_m"].iloc[-1] / 1e3))
@@ -431,9 +522,26 @@ def cases(n_per_effect: int = 10, n_control: int = 30,
           seed: int = truthsim.DEFAULT_SEED) -> list[truthsim.Case]:
     """The FASTSim cases: the days of :func:`benchmarks.truth.cases.cases` (same seeds, so the
     same route days) whose hidden effect FASTSim expresses, and the control days."""
-    return [dataclasses.replace(c, case_id=f"fastsim_{c.case_id}", chemistry=None)
+    return [dataclasses.replace(c, case_id=f"fastsim_{c.case_id}", chemistry=PACK_CHEMISTRY)
             for c in truthsim.cases(n_per_effect, n_control, seed)
             if c.hidden is None or c.hidden in HIDDEN]
+
+
+def buses(n_per_condition: int = 5, n_control: int = 4,
+          seed: int = truthsim.DEFAULT_SEED) -> list[truthsim.Bus]:
+    """The multi-day buses of the conditions FASTSim expresses (:data:`MULTI_DAY`)."""
+    return [dataclasses.replace(b, bus_id=f"fastsim_{b.bus_id}", chemistry=PACK_CHEMISTRY)
+            for b in truthsim.buses(n_per_condition, n_control, seed, MULTI_DAY)]
+
+
+def bus_days(bus: truthsim.Bus) -> list[truthsim.Case]:
+    """The service days of a bus (:func:`benchmarks.truth.cases.bus_days`)."""
+    return truthsim.bus_days(bus)
+
+
+def bus_truth(bus: truthsim.Bus, records: list[dict]) -> dict:
+    """The truth record of a multi-day bus (:func:`benchmarks.truth.cases.bus_truth`)."""
+    return truthsim.bus_truth(bus, records, SOURCE, MULTI_DAY)
 
 
 def _strength(hidden: str | None, effect: dict, clean: pd.DataFrame) -> dict:
@@ -445,78 +553,119 @@ def _strength(hidden: str | None, effect: dict, clean: pd.DataFrame) -> dict:
         delta_k = clean["cabin_temp_degc"] - clean["ambient_degc"]
         measured = float(-clean["cabin_from_ambient_w"].sum() / delta_k.sum())
         return {"cabin_hvac.ua_w_per_k": truthsim.library_ua(measured, truthsim.door_weight(clean))}
+    if hidden == "underinflated_tyres":
+        return {}
     return truthsim._strength(hidden, effect, clean)
 
 
-def generate(case: truthsim.Case, oracle: bool = False) -> tuple[pd.DataFrame, dict]:
-    """One case: the degraded 1 Hz log and its truth record (the schema of ``cases.py``);
-    ``oracle``: the log has ``logged_load_kw`` too, the power the hidden effect adds to what
-    the pack gives out (as in ``cases.generate``)."""
-    log, truth, _ = generate_with_clean(case, oracle)
-    return log, truth
+def _draw_effect(hidden: str | None, rng: np.random.Generator,
+                 plan: pd.DataFrame) -> tuple[dict, dict]:
+    """A day's hidden-effect values and day options from a physics stream: the day options,
+    passenger mass, lights and weak cell group of ``cases.py``, FASTSim's own cabin, and the
+    tyres' rise of rolling resistance."""
+    effect, day = truthsim._physical(hidden, rng, plan, "LFP")
+    if hidden in HVAC_EFFECTS:
+        effect = draw_hvac(rng, hidden)
+    if hidden == "underinflated_tyres":
+        # assumed: tyres 20-40 % below their pressure roll 10-25 % harder
+        effect = {"rolling_rise_frac": float(rng.uniform(0.10, 0.25))}
+    return effect, day
 
 
-def generate_with_clean(case: truthsim.Case, oracle: bool = False) -> tuple[
-        pd.DataFrame, dict, pd.DataFrame]:
-    """:func:`generate`, plus the clean trace (for checks and figures)."""
+def day_trace(case: truthsim.Case) -> tuple[pd.DataFrame, dict, dict, dict, pd.DataFrame]:
+    """The plan, bus, hidden effect's values, day options and clean trace of a case (as in
+    ``cases.py``: where the drawn chargers leave the pack below ``MIN_SOC_FRAC``, the operator
+    runs the same day with 450 kW at both terminals)."""
     require_fastsim()
     hidden = case.hidden
-    plan_ss, base_ss, phys_ss, log_ss = truthsim._streams(case)
+    plan_ss, base_ss, phys_ss, _ = truthsim._streams(case)
     base = draw_base(np.random.default_rng(base_ss))
-    # as in cases.py: when the drawn chargers leave the pack below MIN_SOC_FRAC, the operator
-    # runs the same day with 450 kW at both terminals
     full = {"charger_kw": 450.0, "charger_terminals": (0, 1)}
     for chargers in ({}, full):
         plan = route_day(np.random.default_rng(plan_ss), case.hours, case.start_clock_h,
-                         case.route, climate=case.climate, **chargers)
-        phys_rng = np.random.default_rng(phys_ss)
-        # the day options and the passenger mass and lights of cases.py; FASTSim's own cabin
-        effect, day = truthsim._physical(hidden, phys_rng, plan, "LFP")
-        if hidden in HVAC_EFFECTS:
-            effect = draw_hvac(phys_rng, hidden)
-        clean = simulate(plan, base, hidden, effect, **day)
+                         case.route, climate=case.climate, date=case.date, **chargers)
+        effect, day = _draw_effect(hidden, np.random.default_rng(phys_ss), plan)
+        if case.bus_seed is not None and hidden is not None:  # a day of a multi-day bus:
+            # the effect's values are the bus's (a cell group's loss drawn once per bus)
+            bus_effect = _draw_effect(hidden, np.random.default_rng(
+                np.random.SeedSequence(case.bus_seed).spawn(4)[2]), plan)[0]
+            effect.update({k: v for k, v in bus_effect.items() if k not in truthsim.DAY_LEVEL})
+        clean = simulate(plan, base, hidden if case.active else None, effect, **day)
         if clean["soc_frac"].min() >= truthsim.MIN_SOC_FRAC:
-            break
-    else:
-        raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
-                           f"(SoC {100 * clean['soc_frac'].min():.1f} %)")
+            return plan, base, effect, day, clean
+    raise RuntimeError(f"{case.case_id}: the bus cannot finish its day "
+                       f"(SoC {100 * clean['soc_frac'].min():.1f} %)")
+
+
+def generate(case: truthsim.Case, current_voltage: bool = False,
+             oracle: bool = False) -> tuple[pd.DataFrame, dict]:
+    """One case: the degraded 1 Hz log and its truth record (the schema of ``cases.py``);
+    ``current_voltage``: the log has the pack's current and voltage too (a BMS log, the rest
+    of it unchanged); ``oracle``: the log has ``logged_load_kw`` too, the power the hidden
+    effect adds to what the pack gives out (as in ``cases.generate``)."""
+    log, truth, _ = generate_with_clean(case, oracle, current_voltage)
+    return log, truth
+
+
+def generate_with_clean(case: truthsim.Case, oracle: bool = False,
+                        current_voltage: bool = False) -> tuple[
+        pd.DataFrame, dict, pd.DataFrame]:
+    """:func:`generate`, plus the clean trace (for checks and figures)."""
+    plan, base, effect, day, clean = day_trace(case)
+    hidden = case.hidden
+    acting = hidden if case.active else None
+    log_ss = truthsim._streams(case)[3]
     # the effect's size: the energy it adds against the same day without it
-    without = clean if hidden is None else simulate(plan, base, None, {}, **day)
+    without = clean if acting is None else simulate(plan, base, None, {}, **day)
     # what the log reveals: altitude on grade days, passenger counts on passenger days
     shown = clean.drop(columns=[c for c, keep in (("altitude_m", hidden == "road_grade"),
                                                   ("passengers", hidden == "passenger_mass"))
                                 if not keep])
-    log = degrade(shown, np.random.default_rng(log_ss), relative_time=case.relative_time)
+    shown.attrs.update(clean.attrs, capacity_ah=pack_capacity_ah(base["capacity_kwh"]),
+                       chemistry=PACK_CHEMISTRY)
+    log = degrade(shown, np.random.default_rng(log_ss), relative_time=case.relative_time,
+                  current_voltage=current_voltage)
     if oracle:
         log["logged_load_kw"] = effect_load_kw(
             clean["time_s"].to_numpy(float),
             np.cumsum(clean["energy_out_j"].to_numpy(float) - without["energy_out_j"].to_numpy(float)))
     km = float(clean["distance_m"].iloc[-1]) / 1e3
-    out_j = float(clean["energy_out_j"].sum())
-    capacity_j = base["capacity_kwh"] * 3.6e6
+    out_j = float(clean["energy_out_j"].clip(lower=0.0).sum())
     soc = clean["soc_frac"]
+    force = acting == "underinflated_tyres"
+    hidden_j = float(clean["p_force_w" if force else "p_hidden_w"].sum())
+    shares = None
+    if acting is not None and hidden_j > 0.0:
+        per = np.bincount(modes(clean), weights=clean["p_force_w" if force else "p_hidden_w"],
+                          minlength=len(truthsim.MODES))
+        shares = {m: round(float(v / per.sum()), 4)
+                  for m, v in zip(truthsim.MODES, per, strict=True)}
+    expected = ({**{k: v[0] for k, v in truthsim.EFFECTS.items()}, **{
+        k: v[0] for k, v in MULTI_DAY.items()}}[acting] if acting else None)
+    outside = expected == "outside_library" and shares
     truth = {
         **dataclasses.asdict(case),
         "source": SOURCE,
         "columns": list(log.columns),
-        "expected_verdict": truthsim.EFFECTS[hidden][0] if hidden else None,
-        "outside_mode": None,
-        "mode_shares": None,
-        "strength": _strength(hidden, effect, clean),
+        "expected_verdict": expected,
+        "outside_mode": max(shares, key=shares.get) if outside else None,
+        "outside_modes": sorted(m for m, v in shares.items() if v >= 0.25) if outside else None,
+        "mode_shares": shares,
+        "strength": _strength(acting, effect, clean),
         "physical": {k: float(v) for k, v in effect.items()},
         "base": {k: float(v) for k, v in base.items()},
         "date": plan.attrs["date"],
         "charger_kw": plan.attrs["charger_kw"],
         "charger_terminals": plan.attrs["charger_terminals"],
+        "ambient_mean_degc": round(float(clean["ambient_degc"].mean()), 2),
+        "derated_s": 0,  # FASTSim's pack has no voltage window (module docstring)
         **day,
         "summary": {"km": round(km, 3),
                     "kwh_per_km": round(out_j / 3.6e6 / km, 4),
-                    "hidden_kwh": round(float(clean["p_hidden_w"].sum()) / 3.6e6, 3),
-                    "effect_kwh": round((out_j - float(without["energy_out_j"].sum())) / 3.6e6,
-                                        3),
-                    # what the charger put in = SoC gained + energy given out
-                    "charger_kwh": round((capacity_j * (soc.iloc[-1] - soc.iloc[0]) + out_j)
-                                         / 3.6e6, 3),
+                    "hidden_kwh": round(hidden_j / 3.6e6, 3),
+                    "effect_kwh": round((float(clean["energy_out_j"].sum())
+                                         - float(without["energy_out_j"].sum())) / 3.6e6, 3),
+                    "charger_kwh": round(float(clean["charger_in_w"].sum()) / 3.6e6, 3),
                     "soc_min_pct": round(100.0 * float(soc.min()), 2),
                     "soc_max_pct": round(100.0 * float(soc.max()), 2),
                     "soc_footprint_pct": truthsim.soc_footprint_pct(clean, without)},
@@ -528,32 +677,11 @@ def generate_with_clean(case: truthsim.Case, oracle: bool = False) -> tuple[
 def write(case_list: list[truthsim.Case], out_dir: str | Path) -> list[dict]:
     """Write each case's ``<case_id>.csv.gz`` and the truth records in ``truth_fastsim.json``;
     prints each day's figures and FASTSim run time."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    records = []
-    for case in case_list:
-        start = time.perf_counter()
-        log, truth = generate(case)
-        seconds = time.perf_counter() - start
-        truthsim._atomic_write(out / f"{case.case_id}.csv.gz", truthsim.log_bytes(log))
-        records.append(truth)
-        s = truth["summary"]
-        print(f"{case.case_id:<30} {truth['route']:<5} {case.hours:5.2f} h {s['km']:7.1f} km "
-              f"{s['kwh_per_km']:.3f} kWh/km  effect {s['effect_kwh']:6.2f} kWh  "
-              f"SoC {s['soc_min_pct']:.1f}-{s['soc_max_pct']:.1f} %  {seconds:5.2f} s")
-    truthsim._atomic_write(out / "truth_fastsim.json",
-                           (json.dumps(records, indent=1, sort_keys=True) + "\n").encode())
-    return records
+    return truthsim.write(case_list, out_dir, generate, "truth_fastsim.json")
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True, help="folder for the logs and truth_fastsim.json")
-    parser.add_argument("--n-per-effect", type=int, default=10)
-    parser.add_argument("--n-control", type=int, default=30)
-    parser.add_argument("--seed", type=int, default=truthsim.DEFAULT_SEED)
-    args = parser.parse_args(argv)
-    write(cases(args.n_per_effect, args.n_control, args.seed), args.out)
+    truthsim.cli(sys.modules[__name__], argv, "truth_fastsim.json")
 
 
 if __name__ == "__main__":

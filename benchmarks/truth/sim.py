@@ -26,6 +26,17 @@ Battery (one RC pair; Plett, Battery Management Systems Vol. I, 2015, Sec. 2.7):
     V_1(t+dt) = V_1 e^{-dt/tau_1} + R_1 (1 - e^{-dt/tau_1}) I
     SoC(t+dt) = SoC - I dt / (3600 Q) * (1 if I > 0 else eta_coulomb)
 
+Voltage window (the BMS's): the cells' terminal voltage is kept within
+``[V_min(T), V_max]`` per cell (``vehicles.PACKS``: LFP 2.5-3.65 V, 2.0 V at or below 0 degC;
+NMC 2.8-4.2 V). On discharge the BMS announces the most power the pack can give at the floor,
+``P_dis,max = V_min (E - V_min) / R_0`` (the power at which ``V_t`` = ``V_min``), and the
+vehicle controller derates traction to what is left after the loads: the motor force is cut so
+that ``P_wheel / eta <= P_dis,max - P_aux - P_hidden``, the bus accelerates less and falls
+behind its plan (``derated`` = 1 in the trace). On charge and regeneration the current is
+capped at ``(V_max - E) / R_0`` in magnitude, so ``V_t <= V_max`` (the constant-voltage phase
+of a charge, and the regen limit of a full pack). ``p_discharge_max_w`` and
+``p_charge_max_w`` in the trace are the two limits, second by second.
+
 Resistances scale with pack temperature as ``R(T) = R(25 degC) exp(k (25 - T))`` with
 ``k`` = 0.035 /K (x2.4 at 0 degC, x5.8 at -25 degC), inside the 2-3x rise at 0 degC reported
 for Li-ion cells (Jaguemont, Boulon, Dube, Appl. Energy 164 (2016) 99-114, Sec. 3). A managed
@@ -72,7 +83,32 @@ HIDDEN = {
     "aux_schedule": "lights and demisting after dusk and before dawn",
     "air_compressor": "an electric brake-air compressor, run by its pressure governor",
     "battery_chiller": "a pack chiller that runs while the pack is fast-charged",
+    "dragging_brake": "a sticking brake caliper: after each friction-brake application the "
+                      "pads keep dragging, the drag fading with the distance driven",
+    "capacity_step": "a weak cell group: the pack's capacity drops and its resistance rises",
 }
+FORCES = frozenset({"dragging_brake"})
+"""Hidden effects that act as a force at the wheel (not a load on the DC bus): their power is
+``p_force_w``, the drag times the speed, and their energy ``e_force_j``."""
+
+
+def cell_v_min(pack: dict, temp_degc: float) -> float:
+    """The BMS's discharge floor per cell [V] at the pack's temperature: the data sheet's
+    cold floor at or below 0 degC where it gives one (LFP), else its floor."""
+    return pack.get("cell_v_min_cold", pack["cell_v_min"]) if temp_degc <= 0.0 \
+        else pack["cell_v_min"]
+
+
+def traction_force_at_power(power_w: float, v: float, resist_n: float, m_eff: float,
+                            dt: float) -> float:
+    """The motor force [N] whose wheel power over the step, ``F v_mid`` with the step's mean
+    speed ``v_mid = v + dt (F - F_resist) / (2 m_eff)``, is ``power_w`` [W] (>= 0): the
+    positive root of ``k F^2 + (v - k F_resist) F - P = 0``, ``k = dt / (2 m_eff)``."""
+    if power_w <= 0.0:
+        return 0.0
+    k = 0.5 * dt / m_eff
+    b = v - k * resist_n
+    return (-b + math.sqrt(b * b + 4.0 * k * power_w)) / (2.0 * k)
 
 
 def ocv_cell_v(chemistry: str, soc_frac: float) -> float:
@@ -148,6 +184,11 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
     ocv_x, ocv_y = (np.array(a) for a in OCV_TABLES[chem])
     cells = b["cells_series"]
     q_ah = b["capacity_ah"]
+    r0_25, r1_25 = b["r0_ohm"], b["r1_ohm"]
+    if effect == "capacity_step":  # a weak cell group limits the string
+        q_ah *= 1.0 - ph["capacity_loss_frac"]
+        r0_25 *= 1.0 + ph["resistance_growth_frac"]
+        r1_25 *= 1.0 + ph["resistance_growth_frac"]
     v_max = cells * b["cell_v_max"]
     i_charge_max = b["max_charge_c"] * q_ah
     decay1 = math.exp(-dt / b["tau1_s"])
@@ -165,6 +206,7 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
         cond0 = ph["ua_w_per_k"] + ph["fresh_air_kg_per_s"] * AIR_CP_J_PER_KG_K
         hvac_integral = cond0 * (cabin - ambient[0]) - ph["solar_area_m2"] * solar[0] - 100.0
     pressure = ph.get("cut_out_bar", 12.0)
+    drag_n = 0.0  # a sticking caliper's residual drag
     compressor_on = False
     braking_before = False
     door_before = False
@@ -176,10 +218,11 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
              "p_charger_w", "e_battery_j", "e_ocv_j", "e_battery_loss_j", "e_wheel_j",
              "e_road_j", "e_grade_j", "e_friction_j", "e_kinetic_j", "e_drive_dc_j",
              "e_aux_j", "e_hidden_j", "e_charger_j", "cabin_temp_degc", "pack_temp_degc",
-             "air_pressure_bar", "altitude_m", "distance_m", "accel_mps2", "cv_phase")
+             "air_pressure_bar", "altitude_m", "distance_m", "accel_mps2", "cv_phase",
+             "p_force_w", "e_force_j", "derated", "p_discharge_max_w", "p_charge_max_w")
     rec = {k: np.empty(n_out) for k in names}
     e = dict.fromkeys(("battery", "ocv", "battery_loss", "wheel", "road", "grade", "friction",
-                       "drive_dc", "aux", "hidden", "charger"), 0.0)
+                       "drive_dc", "aux", "hidden", "charger", "force"), 0.0)
 
     v = 0.0
     soc = soc0_frac
@@ -195,8 +238,12 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
         m_eff = mass + m_rot
         ocv = cells * float(np.interp(soc, ocv_x, ocv_y))
         r_factor = math.exp(RESISTANCE_PER_K * (25.0 - pack_temp))
-        r0 = b["r0_ohm"] * r_factor
-        r1 = b["r1_ohm"] * r_factor
+        r0 = r0_25 * r_factor
+        r1 = r1_25 * r_factor
+        v_min = cells * cell_v_min(b, pack_temp)
+        emf_now = ocv - v1
+        # the BMS's discharge limit: the power at which the terminal voltage reaches V_min
+        p_dis_max = max(v_min * (emf_now - v_min) / r0, 0.0)
 
         # -- loads that do not depend on the wheel ------------------------------------
         p_hidden = 0.0
@@ -261,15 +308,23 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
                   if v > 0.01 else 0.0)
         f_aero = 0.5 * AIR_DENSITY_KG_PER_M3 * b["cda_m2"] * v * v
         f_grade = mass * GRAVITY_MPS2 * sin_t
-        f_need = m_eff * a_dem + f_roll + f_aero + f_grade
+        f_drag = drag_n + ph.get("floor_n", 0.0) if effect == "dragging_brake" and v > 0.01 \
+            else 0.0
+        f_need = m_eff * a_dem + f_roll + f_aero + f_grade + f_drag
         f_motor = 0.0
         f_fric = 0.0
+        derated = 0.0
         v_ref = max(v, 0.5)
         if stopped:
             a_dem = 0.0
             f_need = 0.0
         elif f_need > 0.0:
             f_motor = min(f_need, b["traction_force_n"], b["traction_power_w"] / v_ref)
+            # the voltage floor: traction gets what the pack can give after the loads
+            f_floor = traction_force_at_power((p_dis_max - p_aux - p_hidden) * eta, v,
+                                              f_roll + f_aero + f_grade + f_drag, m_eff, dt)
+            if f_floor < f_motor:
+                f_motor, derated = f_floor, 1.0
         else:
             fade = min(max((v - b["regen_zero_speed_mps"])
                            / (b["regen_full_speed_mps"] - b["regen_zero_speed_mps"]), 0.0), 1.0)
@@ -278,17 +333,21 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
                               max(p_batt_cap + p_aux + p_hidden, 0.0) / eta)
             f_motor = max(f_need, -p_regen_cap / v_ref, -mass * b["regen_max_decel_mps2"])
             f_fric = f_need - f_motor
-        a = 0.0 if stopped else (f_motor + f_fric - f_roll - f_aero - f_grade) / m_eff
+        a = 0.0 if stopped else (f_motor + f_fric - f_roll - f_aero - f_grade - f_drag) / m_eff
         v_new = 0.0 if stopped else max(v + a * dt, 0.0)
         if v_new == 0.0 and v > 0.0:
             # standing still within the step: the brakes take only what stops the bus
             a = -v / dt
-            f_fric = m_eff * a - f_motor + f_roll + f_aero + f_grade
+            f_fric = m_eff * a - f_motor + f_roll + f_aero + f_grade + f_drag
         v_mid = 0.5 * (v + v_new)
         braking = f_fric < 0.0 or f_need < -0.5 * m_eff
         if effect == "air_compressor" and braking and not braking_before:
             pressure -= ph["brake_bar"]
         braking_before = braking
+        if effect == "dragging_brake":  # the pads clamp again on each application, then fade
+            drag_n *= math.exp(-v_mid * dt / ph["fade_m"])
+            if f_fric < 0.0:
+                drag_n = max(drag_n, ph["residual_n"])
         p_wheel = f_motor * v_mid
         p_drive = p_wheel / eta if p_wheel > 0.0 else p_wheel * eta
 
@@ -330,6 +389,7 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
         e["aux"] += p_aux * dt
         e["hidden"] += p_hidden * dt
         e["charger"] += p_ch * dt
+        e["force"] += f_drag * v_mid * dt
         altitude += v_mid * sin_t * dt
         dist += v_mid * dt
         if k % out_every == 0:
@@ -348,6 +408,11 @@ def simulate(plan: pd.DataFrame, base: dict, effect: str | None = None,
             rec["distance_m"][j] = dist
             rec["accel_mps2"][j] = a
             rec["cv_phase"][j] = cv_phase
+            rec["p_force_w"][j] = f_drag * v_mid
+            rec["e_force_j"][j] = e["force"]
+            rec["derated"][j] = derated
+            rec["p_discharge_max_w"][j] = p_dis_max
+            rec["p_charge_max_w"][j] = i_accept * (ocv - v1 + r0 * i_accept)
         v = v_new
     rows = held[::out_every]
     trace = pd.DataFrame({"time_s": t[::out_every], "clock_h": clock[::out_every], **rec})

@@ -30,6 +30,17 @@ Battery packs are built from the cell OCV tables in ``sim.py``: 250 kWh LFP (opp
 charging) or 200 kWh NMC, about 650 V, charged up to the cells' data-sheet charge voltage
 (3.65 V LFP, 4.20 V NMC) at 2 C (LFP) or 1.5 C (NMC). Pack resistance: ohmic ``R0`` plus one RC pair
 (``R1``, ``tau1``), 10-s DC resistance ``R0 + R1`` about 0.1 ohm (LFP) and 0.11 ohm (NMC).
+
+Voltage window per cell, which the BMS holds (``sim.py``):
+
+* LFP 2.5-3.65 V, and 2.0 V at or below 0 degC: the charge voltage and discharge end
+  voltages of the Lishen LP54173207 202 Ah LFP traction cell (product specification, Rev. 0,
+  2020-03-09, Table 1: charge voltage 3.65 V; discharge end voltage 2.5 V above 0 degC,
+  2.0 V at or below 0 degC), a prismatic cell of the size used in bus packs;
+* NMC 2.8-4.2 V: the Samsung INR-21700-40T data sheet (whose OCV the truth uses) gives a
+  charge voltage of 4.20 V and a discharge cut-off of 2.5 V; a pack BMS stops above the
+  cell's cut-off, at the 2.7-2.8 V that automotive NMC/NCA cells list as their minimum (the
+  cell table of foxBMS's battery-system design sheet, Fraunhofer IISB: 2.70-2.80 V).
 """
 
 from __future__ import annotations
@@ -58,12 +69,14 @@ NOMINAL_12M = {
 }
 
 PACKS = {
-    # series cells, capacity [Ah], R0 [ohm], R1 [ohm], tau1 [s], max charge C-rate, cell V max
+    # series cells, capacity [Ah], R0 [ohm], R1 [ohm], tau1 [s], max charge C-rate, the cells'
+    # voltage window [V] (and the LFP floor at or below 0 degC)
     "LFP": {"cells_series": 200, "capacity_ah": 385.0, "r0_ohm": 0.060, "r1_ohm": 0.040,
-            "tau1_s": 40.0, "max_charge_c": 2.0, "cell_v_max": 3.65,
+            "tau1_s": 40.0, "max_charge_c": 2.0, "cell_v_max": 3.65, "cell_v_min": 2.5,
+            "cell_v_min_cold": 2.0,
             "coulombic_efficiency": 0.998},
     "NMC": {"cells_series": 176, "capacity_ah": 310.0, "r0_ohm": 0.065, "r1_ohm": 0.045,
-            "tau1_s": 30.0, "max_charge_c": 1.5, "cell_v_max": 4.20,
+            "tau1_s": 30.0, "max_charge_c": 1.5, "cell_v_max": 4.20, "cell_v_min": 2.8,
             "coulombic_efficiency": 0.997},
 }
 
