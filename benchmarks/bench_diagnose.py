@@ -3,18 +3,24 @@
     python -m benchmarks.bench_diagnose            # full run (several minutes)
     python -m benchmarks.bench_diagnose --smoke    # CI: one case, same code paths
     python -m benchmarks.bench_diagnose --out-of-family [--smoke] [--per-effect N]   # truth bench
-    python -m benchmarks.bench_diagnose --out-of-family --current-voltage   # ... on BMS logs
+    python -m benchmarks.bench_diagnose --out-of-family --log bms   # ... BMS logs only
+    python -m benchmarks.bench_diagnose --out-of-family --shard 0/8 --rows r0.json --resume
     python -m benchmarks.bench_diagnose --out-of-family --oracle   # ... the effects' own power
     python -m benchmarks.bench_diagnose --out-of-family --reference   # ... against a normal day
 
 * Out of family (``--out-of-family``): service days made by simulators that are not this
-  model (``benchmarks/truth``: an independent simulator, and FASTSim 3 where installed), one
-  hidden effect per day, base parameters drawn per day. Each day is diagnosed, calibrated, on
-  the 12 m bus without the effects that may be hidden (``BASELINE_WITHOUT``); then the right
-  effect (the library's, or for a load the library lacks the user's file
-  ``benchmarks/user_effects.py``) is added and the bus re-calibrated (the error ladder).
-  Prints the confusion matrix (true effect x verdict) and the figures against their bars.
-  ``--smoke``: 1 day per effect and 3 controls per source, 4 h days.
+  model (``benchmarks/truth``: an independent forward simulator, a backward-facing
+  ADVISOR/VECTO-style model, and FASTSim 3 where installed), one hidden effect per day, base
+  parameters drawn per day; and multi-day buses (6 days each, November to February, a fault
+  from a given day or an effect every day). Each day, and each bus's days together, is
+  diagnosed from its BMS log (the pack's current and voltage) and from its SoC-only log,
+  calibrated, on the 12 m bus without the effects that may be hidden (``BASELINE_WITHOUT``);
+  on single days the right effect (the library's, or for a load or force the library lacks
+  the user's file ``benchmarks/user_effects.py``) is then added and the bus re-calibrated
+  (the error ladder). Prints, per log type and source, the confusion matrices and the figures
+  against their bars, and the headline: the worst source the rules were not tuned on
+  (``--tune-source``). ``--smoke``: the CI subset (``benchmarks.out_of_family.ci_jobs``: a
+  few 2.5 h days and one bus of six 1 h days per source, from both log types).
 
 * Speed: ``ebus diagnose`` on a 13.5 h 1 Hz log (the cabin-heating case of
   ``ebus_env.diagnostics.hidden`` stretched to 13.5 h), without and with ``--calibrate``,
@@ -44,7 +50,15 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.out_of_family import DAYS_CACHE, SOURCES, line, out_of_family, report
+from benchmarks.out_of_family import (
+    DAYS_CACHE,
+    SOURCES,
+    TUNE_SOURCE,
+    line,
+    out_of_family,
+    report,
+    row_key,
+)
 from ebus_env.config import load_bus
 from ebus_env.diagnostics import diagnose, hidden
 from ebus_env.diagnostics.ladder import improvement
@@ -234,8 +248,25 @@ def main() -> None:
     parser.add_argument("--source", choices=tuple(SOURCES), action="append",
                         help="truth sources to run (repeatable; default all)")
     parser.add_argument("--current-voltage", action="store_true",
-                        help="out of family: logs with the pack's current and voltage too (a "
-                        "BMS log; the truth simulator's days)")
+                        help="out of family: BMS logs only (the same as --log bms)")
+    parser.add_argument("--log", choices=("bms", "soc"), action="append",
+                        help="out of family: the log types (repeatable; default both: BMS logs "
+                        "with the pack's current and voltage, and SoC-only logs)")
+    parser.add_argument("--kind", choices=("day", "bus"), action="append",
+                        help="out of family: single days and/or multi-day buses (repeatable; "
+                        "default both)")
+    parser.add_argument("--per-condition", type=int, default=None,
+                        help="out of family: only the first N multi-day buses of each condition")
+    parser.add_argument("--control-buses", type=int, default=None,
+                        help="out of family: only the first N control buses of each source")
+    parser.add_argument("--shard", default=None,
+                        help="out of family: I/N runs every N-th job from the I-th (I from 0), "
+                        "with --rows and --resume a resumable part of the whole bench")
+    parser.add_argument("--tune-source", choices=tuple(SOURCES), default=TUNE_SOURCE,
+                        help="out of family: the source the diagnosis is tuned on; the "
+                        "headline is the worst of the others")
+    parser.add_argument("--generate-only", action="store_true",
+                        help="out of family: make and cache the days (--cache), diagnose none")
     parser.add_argument("--oracle", action="store_true",
                         help="out of family: each log also carries its hidden effect's own "
                         "power (a perfect form of the effect), for bounds")
@@ -248,8 +279,9 @@ def main() -> None:
                         help="out of family: hold each day's true curb mass (a weighed bus; "
                         "diagnose --set vehicle_body.curb_mass_kg=...)")
     parser.add_argument("--effect", action="append", default=[],
-                        help="out of family: only the days hiding this effect (repeatable; "
-                        "the truth bench's names, e.g. cold_battery), and the control days")
+                        help="out of family: only the days and buses hiding this effect "
+                        "(repeatable; the truth bench's names, e.g. cold_battery), and the "
+                        "control days and buses")
     parser.add_argument("--resume", action="store_true",
                         help="out of family: keep the days already in the --rows file and run "
                         "only the others (a bench stopped part-way)")
@@ -267,21 +299,33 @@ def main() -> None:
     args = parser.parse_args()
     if args.days_per_bus < 1:
         parser.error(f"--days-per-bus must be 1 or more, not {args.days_per_bus}")
+    shard = None
+    if args.shard:
+        try:
+            shard = tuple(int(x) for x in args.shard.split("/"))
+            assert len(shard) == 2 and 0 <= shard[0] < shard[1]
+        except (ValueError, AssertionError):
+            parser.error(f"--shard takes I/N with 0 <= I < N (e.g. 0/8), not {args.shard!r}")
     parts = set(args.part or ("speed", "hidden", "bmw", "twizy"))
     if args.from_rows:
         rows = {}
         for path in args.from_rows:
             for row in json.loads(path.read_text()):
-                rows.setdefault((row["source"], row["case"]), row)
-        report(list(rows.values()), args.oracle, args.workers)
+                rows.setdefault(row_key(row), row)
+        report(list(rows.values()), args.oracle, args.workers, args.tune_source)
         return
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE
         cache.mkdir(parents=True, exist_ok=True)
+        logs = tuple(args.log) if args.log else (("bms",) if args.current_voltage else None)
         out_of_family(cache, args.smoke, args.workers, tuple(args.source or SOURCES),
                       args.per_effect, args.controls, args.current_voltage, args.rows,
                       args.oracle, args.reference, tuple(args.effect), args.resume,
-                      args.known_curb_mass, not args.no_ladder, args.days_per_bus)
+                      args.known_curb_mass, not args.no_ladder, args.days_per_bus,
+                      logs=logs, kinds=tuple(args.kind or ("day", "bus")),
+                      per_condition=args.per_condition, control_buses=args.control_buses,
+                      shard=shard, tune_source=args.tune_source,
+                      generate_only=args.generate_only)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

@@ -1,8 +1,16 @@
 """The out-of-family truth bench: service days from simulators that are not this model, each
-with one hidden effect (or none), diagnosed and scored.
+with one hidden effect (or none), diagnosed and scored; single days and multi-day buses, on
+BMS logs (the pack's current and voltage) and SoC-only logs, from three truth sources.
 
 ``python -m benchmarks.bench_diagnose --out-of-family`` runs it; other benchmarks import its
-pieces (the cases, a cached day, the right-verdict rule).
+pieces (the cases, a cached day, the right-verdict rule). The figures are
+:mod:`benchmarks.truth.scoring`'s.
+
+A job is one day or one bus, of one source, on one log type (:class:`Job`). The whole bench is
+its job list (:func:`jobs`); ``--shard i/n`` runs every n-th job from the i-th, ``--rows``
+keeps each finished job's row, ``--resume`` skips the jobs a rows file has, and
+``--from-rows`` reports rows files together. The days are generated once per source and case
+(both log types and the oracle column from one run, cached: :func:`truth_day`).
 """
 
 from __future__ import annotations
@@ -10,12 +18,14 @@ from __future__ import annotations
 import json
 import tempfile
 import time
-from collections import Counter
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
+import pandas as pd
 
+from benchmarks.truth import scoring
+from benchmarks.truth.cache import day_paths
+from benchmarks.truth.scoring import LOGS, line  # noqa: F401  (other benchmarks import line)
 from ebus_env.config import load_bus
 from ebus_env.diagnostics import diagnose
 from ebus_env.diagnostics.ladder import Freedom, improvement
@@ -24,15 +34,16 @@ from ebus_env.io.measured import load_log
 BENCHMARKS = Path(__file__).resolve().parent
 USER_FILE = BENCHMARKS / "user_effects.py"
 USER_EFFECTS = {"battery_chiller": f"{USER_FILE}:pack_chiller",
-                "air_compressor": f"{USER_FILE}:air_compressor"}
-"""For each load the library does not have, the effect a user writes for it
+                "air_compressor": f"{USER_FILE}:air_compressor",
+                "dragging_brake": f"{USER_FILE}:brake_drag",
+                "underinflated_tyres": f"{USER_FILE}:soft_tyres"}
+"""For each load or force the library does not have, the effect a user writes for it
 (``benchmarks/user_effects.py``): what the error ladder adds on those days."""
-
-
-
-def line(what: str, value: str, note: str = "") -> None:
-    print(f"  {what:58s} {value:>18s}  {note}", flush=True)
-
+CONTROL_ADDS = ("cabin_hvac", "passenger_mass", "road_grade", "aux_schedule",
+                "regen_soc_limit", "ambient_battery")
+"""On a control day the ladder adds one of these library effects (in turn, by the day's
+index): what adding an effect that is not there does to the held-out error, the spread an
+effect day's rise is read against."""
 
 ORACLE = "replayed_load"
 """On an oracle day (``--oracle``) the log carries the hidden effect's own power, the day with
@@ -44,11 +55,46 @@ BASELINE_WITHOUT = ("cabin_hvac", "passenger_mass", "road_grade")
 truth day may hide (the slot effects that may be hidden, regen_soc_limit and ambient_battery,
 are refinements the 12 m bus does not have, and aux_schedule is not on it)."""
 CELLS_PARALLEL = 3.0  # the 12 m pack's strings: the truth's pack capacity is theirs together
-SOURCES = {"truthsim": "benchmarks.truth.cases", "fastsim": "benchmarks.truth.fastsim_source"}
+SOURCES = {"truthsim": "benchmarks.truth.cases", "fastsim": "benchmarks.truth.fastsim_source",
+           "backward": "benchmarks.truth.backward_source"}
+TUNE_SOURCE = "truthsim"
+"""The source the diagnosis's thresholds, priors and rules are set on; the figures of the
+others are the held-out ones."""
 SMOKE_HOURS = 4.0
 DAYS_CACHE = Path(tempfile.gettempdir()) / "ebus-truth-days"  # the generated days, by default
-BARS = {"top1": 0.90, "false_alarms": 0.05, "outside": 0.80, "fall": 0.50, "strength": 0.25,
-        "coverage": 0.80, "time_s": 60.0}
+BMS_COLUMNS = ("battery_current_a", "battery_voltage_v")
+ORACLE_COLUMN = "logged_load_kw"
+KINDS = ("day", "bus")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of the bench: a single day (``kind`` "day", ``item`` a ``Case``) or a
+    multi-day bus (``kind`` "bus", ``item`` a ``Bus``) of a source, diagnosed from one log
+    type (``log`` "bms" or "soc")."""
+
+    source: str
+    log: str
+    kind: str
+    item: object
+    folder: str
+    oracle: bool = False
+    reference: bool = False
+    known_mass: bool = False
+    days: int = 1
+
+    @property
+    def key(self) -> tuple[str, str, str, str]:
+        return (self.source, self.log, self.kind, item_id(self.item))
+
+
+def item_id(item) -> str:
+    return getattr(item, "bus_id", None) or item.case_id
+
+
+def row_key(row: dict) -> tuple[str, str, str, str]:
+    """The job a row belongs to (rows of earlier runs: a day, its log type inferred)."""
+    return (row["source"], scoring.log_of(row), scoring.kind_of(row), row["case"])
 
 
 def truth_module(source: str):
@@ -63,56 +109,93 @@ def truth_module(source: str):
 
 def truth_cases(source: str, smoke: bool, per_effect: int | None = None,
                 controls: int | None = None, effects: tuple[str, ...] = ()) -> list:
-    """The cases of a source: the whole bench (or its first ``per_effect`` days of each effect,
-    of ``effects`` only when given, and first ``controls`` control days), or 1 day per effect
-    and 3 controls, each the last ``SMOKE_HOURS`` of its day (so that an evening load stays in
-    it)."""
+    """The single days of a source: the whole bench (or its first ``per_effect`` days of each
+    effect, of ``effects`` only when given, and first ``controls`` control days), or 1 day
+    per effect and 3 controls, each the last ``SMOKE_HOURS`` of its day (so that an evening
+    load stays in it)."""
     module, _ = truth_module(source)
     if not smoke:
-        taken: dict = {}
-        out = []
-        for c in module.cases():
-            limit = controls if c.hidden is None else per_effect
-            taken[c.hidden] = taken.get(c.hidden, 0) + 1
-            if (limit is None or taken[c.hidden] <= limit) and (
-                    not effects or c.hidden is None or c.hidden in effects):
-                out.append(c)
-        return out
+        return first_of(module.cases(), lambda c: c.hidden, per_effect, controls, effects)
     return [replace(c, start_clock_h=round(c.start_clock_h + max(c.hours - SMOKE_HOURS, 0), 3),
                     hours=min(c.hours, SMOKE_HOURS)) for c in module.cases(1, 3)]
 
 
-def truth_day(source: str, case, folder: Path, current_voltage: bool = False,
-              oracle: bool = False):
-    """A truth day's profiles and truth record, generated once and cached in ``folder``. A
-    case cut shorter (the smoke run's last hours of a day) is cached under its own name, so
-    that the whole bench never reads a cut day from a shared folder, nor the reverse; so is
-    a log with the pack's current and voltage (``current_voltage``, the truth simulator's)
-    and a log with the hidden effect's own power (``oracle``, column ``logged_load_kw``)."""
+def truth_buses(source: str, per_condition: int | None = None, controls: int | None = None,
+                conditions: tuple[str, ...] = ()) -> list:
+    """The multi-day buses of a source (its first ``per_condition`` buses of each condition,
+    of ``conditions`` only when given, and its first ``controls`` control buses)."""
+    module, _ = truth_module(source)
+    return first_of(module.buses(), lambda b: b.condition, per_condition, controls, conditions)
 
-    variant = ("-iv" if current_voltage else "") + ("-oracle" if oracle else "")
 
-    def paths(stem):
-        return folder / f"{stem}{variant}.csv.gz", folder / f"{stem}{variant}.json"
+def first_of(items: list, hidden_of, per_kind: int | None, controls: int | None,
+             kinds: tuple[str, ...]) -> list:
+    """The first ``per_kind`` items of each hidden effect (of ``kinds`` only, when given) and
+    the first ``controls`` control items (hidden None), in the list's order (None: all)."""
+    taken: dict = {}
+    out = []
+    for item in items:
+        hidden = hidden_of(item)
+        limit = controls if hidden is None else per_kind
+        taken[hidden] = taken.get(hidden, 0) + 1
+        if (limit is None or taken[hidden] <= limit) and (
+                not kinds or hidden is None or hidden in kinds):
+            out.append(item)
+    return out
 
-    log_path, truth_path = paths(f"{source}-{case.case_id}")
-    if truth_path.exists():
-        cached = json.loads(truth_path.read_text())
-        if (cached["start_clock_h"], cached["hours"]) != (case.start_clock_h, case.hours):
-            log_path, truth_path = paths(f"{source}-{case.case_id}-{case.hours:g}h-from-"
-                                         f"{case.start_clock_h:g}h")
+
+def _write_csv(frame: pd.DataFrame, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    frame.to_csv(tmp, index=False, compression="gzip")
+    tmp.replace(path)
+
+
+def generate_day(source: str, case, folder: Path) -> tuple[Path, Path]:
+    """Generate a day once: its whole log (the pack's current and voltage and the oracle
+    column: every variant is this log less columns) and its truth record, cached in
+    ``folder``. A case cut shorter (the smoke run's last hours of a day) is cached under its
+    own name. Returns the paths of the whole log and the record."""
+
+    log_path, truth_path = day_paths(folder, source, case)
     if not truth_path.exists():
         module, _ = truth_module(source)
-        options = {k: True for k, on in (("current_voltage", current_voltage),
-                                          ("oracle", oracle)) if on}
-        log, truth = module.generate(case, **options)
-        tmp = log_path.with_name(log_path.name + ".tmp")
-        log.to_csv(tmp, index=False, compression="gzip")
-        tmp.replace(log_path)
+        log, truth = module.generate(case, current_voltage=True, oracle=True)
+        _write_csv(log, log_path)
         tmp = truth_path.with_name(truth_path.name + ".tmp")  # the record last: the day is whole
         tmp.write_text(json.dumps(truth, default=str))
         tmp.replace(truth_path)
-    return load_log(log_path).profiles, json.loads(truth_path.read_text())
+    return log_path, truth_path
+
+
+def truth_day(source: str, case, folder: Path, current_voltage: bool = False,
+              oracle: bool = False):
+    """A truth day's profiles and truth record: the SoC-only log, or with the pack's
+    current and voltage (``current_voltage``, a BMS log), with the hidden effect's own power
+    (``oracle``, column ``logged_load_kw``) or not; each variant is the generated day's whole
+    log less the columns it lacks (:func:`generate_day`), written once beside it."""
+    log_path, truth_path = generate_day(source, case, Path(folder))
+    variant = ("bms" if current_voltage else "soc") + ("-oracle" if oracle else "")
+    path = log_path.with_name(log_path.name.replace(".full.", f".{variant}."))
+    truth = json.loads(truth_path.read_text())
+    drop = [c for c in truth["columns"] if (c in BMS_COLUMNS and not current_voltage)
+            or (c == ORACLE_COLUMN and not oracle)]
+    if not path.exists():
+        _write_csv(pd.read_csv(log_path).drop(columns=drop), path)
+    truth["columns"] = [c for c in truth["columns"] if c not in drop]
+    return load_log(path).profiles, truth
+
+
+def truth_bus(source: str, bus, folder: Path, current_voltage: bool = False):
+    """A multi-day bus: the profiles of all its days (each keeping its date), its days'
+    truth records and the bus's truth record."""
+    module, _ = truth_module(source)
+    profiles, records = [], []
+    for case in bus_days_of(source, bus):
+        more, truth = truth_day(source, case, folder, current_voltage)
+        profiles += more
+        records.append(truth)
+    truth = module.bus_truth(getattr(bus, "bus", bus), records)
+    return profiles, records, {**truth, "bus_id": bus.bus_id}
 
 
 def same_bus_days(case, days: int) -> list:
@@ -135,17 +218,58 @@ def named_right(expected, verdict: str | None, status: str, effects: list[str],
     return verdict in right or (oracle and tied == {expected, ORACLE})
 
 
+def _verdict_row(d, truth: dict, source: str, name: str, hidden, oracle: bool) -> dict:
+    """The row fields every job shares: the verdict and what it rests on."""
+    plain = d.to_json()
+    row = {"source": source, "case": name, "hidden": hidden,
+           "expected": truth["expected_verdict"],
+           "outside_modes": truth.get("outside_modes") or [],
+           "truth": truth.get("strength", {}),
+           "verdict": d.verdict, "status": d.status, "clue": d.mode_clue,
+           # the missing power by operating mode the clue is read from, and what it moves
+           # with: for analyses of the clue's rule
+           "modes": plain["modes"], "clues": plain["clues"][:5],
+           # on a BMS log: the pack's resistance the logged voltage shows, over the model's
+           "resistance": {k: d.resistance[k] for k in ("level", "span", "significance",
+                                                       "changes")} if d.resistance else None,
+           "top": d.ranking[0]["effect"] if d.ranking else None,
+           "estimate": d.named["parameters"] if d.verdict else {},
+           "interval": d.named["interval"] if d.verdict else {},
+           # the energy the named effect adds over the day, against the truth's: the one
+           # strength two structurally different models share (a UA or a derating SoC is
+           # defined by each model's own form)
+           "energy_kwh": d.named.get("energy_kwh") if d.verdict else None,
+           "energy_interval_kwh": d.named.get("energy_interval_kwh") if d.verdict else None,
+           "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
+           "footprint_pct": truth.get("summary", {}).get("soc_footprint_pct"),
+           "why": d.why, "range_ends": d.range_ends}
+    # the day a change started, where the diagnosis dates one (a bus's days together)
+    for key in ("since", "since_interval"):
+        if key in plain:
+            row[key] = plain[key]
+    row["right"] = named_right(row["expected"], d.verdict, d.status,
+                               [r["effect"] for r in d.ranking], oracle)
+    return row
+
+
 def diagnose_truth_day(job, ladder: bool = True) -> dict:
     """Diagnose one truth day, calibrated, and (``ladder``) add the right effect and
-    re-calibrate (worker of the pool). On an oracle day (the log carries the hidden effect's
-    own power) the right effect is the library's or :data:`ORACLE`, and the ladder adds
-    :data:`ORACLE`: the hidden effect in a perfect form. With ``days`` > 1 the case's day and
-    ``days - 1`` more days of the same bus (:func:`~benchmarks.truth.cases.same_bus_case`)
-    are diagnosed together, as one bus's logs."""
+    re-calibrate (worker of the pool). ``job``: a :class:`Job`, or the tuple ``(source, case,
+    folder[, current_voltage, oracle, reference, known_mass, days])``. On an oracle day (the
+    log carries the hidden effect's own power) the right effect is the library's or
+    :data:`ORACLE`, and the ladder adds :data:`ORACLE`: the hidden effect in a perfect form.
+    On a control day the ladder adds one of :data:`CONTROL_ADDS`. With ``days`` > 1 the
+    case's day and ``days - 1`` more days of the same bus
+    (:func:`~benchmarks.truth.cases.same_bus_case`) are diagnosed together, as one bus's
+    logs."""
     from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
-    source, case, folder, current_voltage, oracle, reference, known_mass, days = (
-        *job, False, False, False, False, 1)[:8]
+    if isinstance(job, Job):
+        source, case, folder, current_voltage = job.source, job.item, job.folder, job.log == "bms"
+        oracle, reference, known_mass, days = job.oracle, job.reference, job.known_mass, job.days
+    else:
+        source, case, folder, current_voltage, oracle, reference, known_mass, days = (
+            *job, False, False, False, False, 1)[:8]
     profiles, truth = truth_day(source, case, Path(folder), current_voltage, oracle)
     for other in same_bus_days(case, days):
         more, their = truth_day(source, other, Path(folder), current_voltage, oracle)
@@ -168,41 +292,25 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
         reference = reference_stage(bus, normal_day, None, None, None, None)
     d = diagnose(bus, profiles, calibrate=True, reference=reference or None, freedom=freedom)
-    plain = d.to_json()
     if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")
         freedom = reference.freedom(bus.build(profiles[0].dt_s), freedom)
-    row = {"cpu_s": time.process_time() - cpu0, "source": source, "case": case.case_id,
-           "hidden": case.hidden, "expected": truth["expected_verdict"],
-           "outside_modes": truth.get("outside_modes") or [],
-           "truth": truth.get("strength", {}),
-           "verdict": d.verdict, "status": d.status, "clue": d.mode_clue,
-           # the missing power by operating mode the clue is read from, and what it moves
-           # with: for analyses of the clue's rule
-           "modes": plain["modes"], "clues": plain["clues"][:5],
-           # on a BMS log: the pack's resistance the logged voltage shows, over the model's
-           "resistance": {k: d.resistance[k] for k in ("level", "span", "significance",
-                                                       "changes")} if d.resistance else None,
-           "top": d.ranking[0]["effect"] if d.ranking else None,
-           "estimate": d.named["parameters"] if d.verdict else {},
-           "interval": d.named["interval"] if d.verdict else {},
-           # the energy the named effect adds over the day, against the truth's: the one
-           # strength two structurally different models share (a UA or a derating SoC is
-           # defined by each model's own form)
-           "energy_kwh": d.named.get("energy_kwh") if d.verdict else None,
-           "energy_interval_kwh": d.named.get("energy_interval_kwh") if d.verdict else None,
-           "truth_kwh": truth.get("summary", {}).get("effect_kwh"),
-           "footprint_pct": truth.get("summary", {}).get("soc_footprint_pct"),
+    row = {"cpu_s": time.process_time() - cpu0, "log": "bms" if current_voltage else "soc",
+           "kind": "day",
+           **_verdict_row(d, truth, source, case.case_id, case.hidden, oracle),
            "days": days, "time_s": time.perf_counter() - t0,
-           "hours": sum(p.duration_s for p in profiles) / 3600.0, "why": d.why,
-           "range_ends": d.range_ends}
+           "hours": sum(p.duration_s for p in profiles) / 3600.0}
     expected = truth["expected_verdict"]
-    row["right"] = named_right(expected, d.verdict, d.status,
-                               [r["effect"] for r in d.ranking], oracle)
     # the right effect: the library's, or for a load it lacks the user's own file; on an
-    # oracle day the hidden effect's own power
-    row["added"] = ORACLE if oracle else (
-        USER_EFFECTS.get(case.hidden) if expected == "outside_library" else expected)
+    # oracle day the hidden effect's own power; on a control day an effect that is not there
+    if oracle:
+        row["added"] = ORACLE
+    elif expected == "outside_library":
+        row["added"] = USER_EFFECTS.get(case.hidden)
+    elif expected is None:
+        row["added"] = CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)]
+    else:
+        row["added"] = expected
     if ladder and row["added"]:
         rungs = error_ladder(bus, profiles, [row["added"]], profiles[0].dt_s,
                              first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
@@ -218,142 +326,176 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     return row
 
 
-def confusion(rows) -> None:
-    """True effect x verdict (counts)."""
-    def label(value):
-        return "control" if value is None else value
-
-    truths = sorted({label(r["expected"]) for r in rows})
-    verdicts = sorted({r["verdict"] or r["status"] for r in rows})
-    width = max(map(len, truths)) + 2
-    print("\nConfusion matrix (rows: true effect; columns: verdict, or why none)")
-    print(" " * width + " | ".join(f"{v[:15]:>15s}" for v in verdicts))
-    for t in truths:
-        counts = [sum(1 for r in rows if label(r["expected"]) == t
-                      and (r["verdict"] or r["status"]) == v) for v in verdicts]
-        print(f"{t:<{width}s}" + " | ".join(f"{c:>15d}" for c in counts))
+def _index(case_id: str) -> int:
+    """The trailing number of a case id (``control_07`` -> 7; 0 where there is none)."""
+    tail = case_id.rsplit("_", 1)[-1]
+    return int(tail) if tail.isdigit() else 0
 
 
-def figures(rows) -> dict:
-    """The issue's figures, each with the number of days behind it."""
-    library = [r for r in rows if r["expected"] not in (None, "outside_library")]
-    control = [r for r in rows if r["expected"] is None]
-    outside = [r for r in rows if r["expected"] == "outside_library"]
-    right = [r for r in library if r["right"]]
-    shared = [(r, k) for r in right for k in r["estimate"] if k in r["truth"]]
-    energies = [r for r in right if r["energy_kwh"] is not None and r["truth_kwh"]]
-    falls, falls_charge, falls_first = {}, {}, {}
-    for r in library + outside:
-        label = (f"{r['added'].split(':')[-1]} (user's file)"
-                 if r["expected"] == "outside_library" else r["expected"])
-        falls.setdefault(label, []).append(r.get("fall", float("nan")))
-        if "fall_first_search" in r:
-            falls_first.setdefault(label, []).append(r["fall_first_search"])
-        if "fall_charge" in r:
-            falls_charge.setdefault(label, []).append(r["fall_charge"])
-    ten_h = [r["time_s"] * 10.0 / r["hours"] for r in rows]
-    ten_h_cpu = [r["cpu_s"] * 10.0 / r["hours"] for r in rows]
-
-    def share(part, whole):
-        return (len(part) / len(whole), len(whole)) if whole else (float("nan"), 0)
-
-    checked = [r for r in rows if r.get("resistance")]  # logs with the pack's voltage
-
-    def changing(days):
-        return share([r for r in days if r["resistance"]["changes"]], days)
-
-    return {
-        "top1": share(right, library),
-        # the ranking's first effect, named or not: a lead on a day left open (a control day's
-        # ranking has a first effect too)
-        "ranked_first": share([r for r in library if r.get("top") == r["expected"]], library),
-        "open_ranked_first": share([r for r in library if not r["right"]
-                                    and r.get("top") == r["expected"]],
-                                   [r for r in library if not r["right"]]),
-        "false_alarms": share([r for r in control if r["verdict"]], control),
-        # the clue is right when it names a mode that takes >= 25 % of the load's energy
-        "outside": share([r for r in outside if r["status"] == "outside library"
-                          and r["clue"] in r["outside_modes"]], outside),
-        # "no library effect explains it" on a day with nothing hidden: the calibrated bus
-        # misses power beyond the log's noise all the same
-        "control_outside": share([r for r in control if r["status"] == "outside library"],
-                                 control),
-        # a clue on a day with nothing hidden: where the calibrated bus itself misses power,
-        # what a clue on an outside-library day must stand out of
-        "control_clue": share([r for r in control if r["clue"]], control),
-        "control_modes": Counter(r["clue"] for r in control if r["clue"]).most_common(),
-        # the calibrated bus pressed against the ends of its ranges with nothing hidden: how
-        # far the other simulator's bus lies from what the library's parameters can take up
-        "control_ends": share([r for r in control if r.get("range_ends")], control),
-        "control_end_params": Counter(f"{n.split('.')[-1]} {side}" for r in control
-                                      for n, side in r.get("range_ends", {}).items())
-        .most_common(),
-        # (no fall where the ladder was not run, --no-ladder)
-        "fall": {k: float(np.nanmedian(v)) for k, v in falls.items() if np.isfinite(v).any()},
-        "fall_charge": {k: float(np.nanmedian(v)) for k, v in falls_charge.items()},
-        # the same against the diagnosis's first calibration, not searched again
-        "fall_first_search": {k: float(np.nanmedian(v)) for k, v in falls_first.items()},
-        "strength": share([1 for r, k in shared if abs(r["estimate"][k] / r["truth"][k] - 1)
-                           <= BARS["strength"]], shared),
-        "coverage": share([1 for r, k in shared if r["interval"][k][0] <= r["truth"][k]
-                           <= r["interval"][k][1]], shared),
-        "energy": share([r for r in energies if abs(r["energy_kwh"] / r["truth_kwh"] - 1)
-                         <= BARS["strength"]], energies),
-        "energy_coverage": share([r for r in energies if r["energy_interval_kwh"][0]
-                                  <= r["truth_kwh"] <= r["energy_interval_kwh"][1]], energies),
-        # the logged voltage shows the pack's resistance changing: on cold-battery days
-        # (a pack warming by its losses) and on the others
-        "resistance_cold": changing([r for r in checked if r["hidden"] == "cold_battery"]),
-        "resistance_other": changing([r for r in checked if r["hidden"] != "cold_battery"]),
-        "time_s": (float(np.median(ten_h)) if ten_h else float("nan"), len(ten_h)),
-        "cpu_s": (float(np.median(ten_h_cpu)) if ten_h else float("nan"), len(ten_h)),
-    }
+def diagnose_truth_bus(job: Job) -> dict:
+    """Diagnose a multi-day bus: all its days' logs in one call, calibrated, as
+    ``diagnose(bus, profiles, calibrate=True)`` with each profile keeping its date (worker
+    of the pool). The row carries the verdict, the diagnosis's ``since`` and
+    ``since_interval`` where it gives them, and the truth's start day and dates."""
+    bus_case = job.item
+    profiles, records, truth = truth_bus(job.source, bus_case, Path(job.folder), job.log == "bms")
+    bus = load_bus("12m", without=list(BASELINE_WITHOUT))
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    d = diagnose(bus, profiles, calibrate=True)
+    return {"cpu_s": time.process_time() - cpu0, "log": job.log, "kind": "bus",
+            **_verdict_row(d, truth, job.source, bus_case.bus_id, bus_case.condition, False),
+            "condition_kind": truth["kind"], "start_day": truth["start_day"],
+            "start_date": truth["start_date"], "dates": truth["dates"],
+            "ambient_mean_degc": truth["ambient_mean_degc"],
+            "days": len(records), "time_s": time.perf_counter() - t0,
+            "hours": sum(p.duration_s for p in profiles) / 3600.0}
 
 
-FOOTPRINT_BINS_PCT = (0.0, 0.5, 1.0, 2.0, 5.0, np.inf)
+def run_job(job: Job, ladder: bool = True) -> dict:
+    """A job's row: a day (with the error ladder, ``ladder``) or a bus."""
+    return diagnose_truth_bus(job) if job.kind == "bus" else diagnose_truth_day(job, ladder)
 
 
-def footprint_table(rows) -> None:
-    """The library effects named right by the hidden effect's SoC footprint (the most it
-    moves the SoC against the same day without it): what a SoC log can show of an effect."""
-    days = [r for r in rows if r["expected"] not in (None, "outside_library")
-            and r.get("footprint_pct") is not None]
-    if not days:
-        return
-    print("\nNamed right by the hidden effect's SoC footprint (most it moves the SoC)")
-    edges = FOOTPRINT_BINS_PCT
-    for source in sorted({r["source"] for r in days}):
-        for low, high in zip(edges[:-1], edges[1:], strict=True):
-            group = [r for r in days if r["source"] == source
-                     and low <= r["footprint_pct"] < high]
-            if not group:
-                continue
-            total = Counter(r["expected"] for r in group)
-            right = Counter(r["expected"] for r in group if r["right"])
-            line(f"{source}: {low:g} to {high:g} percentage points" if np.isfinite(high)
-                 else f"{source}: >= {low:g} percentage points",
-                 f"{sum(right.values())} of {len(group)}",
-                 ", ".join(f"{e} {right[e]}/{n}" for e, n in total.most_common()))
+def generate_job(job: Job) -> float:
+    """Generate (or find cached) every day a job reads; returns the seconds it took."""
+    t0 = time.perf_counter()
+    folder = Path(job.folder)
+    if job.kind == "bus":
+        for case in bus_days_of(job.source, job.item):
+            generate_day(job.source, case, folder)
+    else:
+        generate_day(job.source, job.item, folder)
+        for other in same_bus_days(job.item, job.days):
+            generate_day(job.source, other, folder)
+        if job.reference:
+            from benchmarks.truth.cases import reference_case
+
+            generate_day(job.source, reference_case(job.item), folder)
+    return time.perf_counter() - t0
 
 
-def oracle_table(rows) -> None:
-    """Per hidden effect (the library's effect it should be named as; a load outside the
-    library by its own name): the days named right when the log also carries the effect's
-    own power (named as the library's effect or as that power, :data:`ORACLE`), and the
-    held-out NRMSE fall with the effect in that perfect form added: bounds for what a better
-    form of the library's effect could reach on these days."""
-    print(f"\nWith the hidden effect in a perfect form ({ORACLE} of the logged effect power)")
-    line("hidden effect (source)", "named right", "of them by its perfect form alone; held-out "
-         "NRMSE fall with it added (median)")
-    groups: dict = {}
-    for r in rows:
-        effect = r["hidden"] if r["expected"] == "outside_library" else r["expected"]
-        groups.setdefault((effect, r["source"]), []).append(r)
-    for (effect, source), group in sorted(groups.items()):
-        right = [r for r in group if r["right"]]
-        fall = np.nanmedian([r.get("fall", float("nan")) for r in group])
-        line(f"{effect} ({source})", f"{len(right)} of {len(group)}",
-             f"{sum(r['verdict'] == ORACLE for r in right)}; fall {100 * fall:.0f} %")
+def jobs(folder: Path, smoke: bool, sources: tuple[str, ...] = tuple(SOURCES),
+         logs: tuple[str, ...] = LOGS, kinds: tuple[str, ...] = KINDS,
+         per_effect: int | None = None, controls: int | None = None,
+         effects: tuple[str, ...] = (), per_condition: int | None = None,
+         control_buses: int | None = None, oracle: bool = False, reference: bool = False,
+         known_mass: bool = False, days: int = 1, say=print) -> list[Job]:
+    """The bench's job list in a fixed order: per source, its single days on each log type,
+    then its buses on each log type (``smoke``: the smoke days, no buses)."""
+    out = []
+    for source in sources:
+        module, why = truth_module(source)
+        if module is None:
+            say(f"  {why}: skipped")
+            continue
+        if "day" in kinds:
+            if days > 1 and source != "truthsim":
+                say(f"  {source}: its days draw their hidden effect each day, not per bus: "
+                    "skipped")
+            else:
+                for log in logs:
+                    out += [Job(source, log, "day", c, str(folder), oracle, reference,
+                                known_mass, days)
+                            for c in truth_cases(source, smoke, per_effect, controls, effects)
+                            if not (oracle and c.hidden is None)]
+        if "bus" in kinds and not smoke:
+            for log in logs:
+                out += [Job(source, log, "bus", b, str(folder))
+                        for b in truth_buses(source, per_condition, control_buses, effects)]
+    return out
+
+
+CI_DAYS = {"truthsim": ("road_grade", "dragging_brake", None),
+           "fastsim": ("road_grade", None),
+           "backward": ("road_grade", None)}
+"""The CI subset's single days of each source: its first day of these hidden effects (None:
+a control day), the last ``CI_DAY_HOURS`` of it, from both log types."""
+CI_BUSES = {"truthsim": "regen_soc_limit", "fastsim": "cabin_heating",
+            "backward": "dragging_brake"}
+"""The CI subset's multi-day bus of each source: its first bus of this condition, each of
+its days cut to its last ``CI_BUS_DAY_HOURS``, from both log types."""
+CI_DAY_HOURS = 2.5
+CI_BUS_DAY_HOURS = 1.0
+
+
+def cut(case, hours: float):
+    """A case cut to the last ``hours`` of its day (an evening load stays in it)."""
+    return replace(case, start_clock_h=round(case.start_clock_h + max(case.hours - hours, 0), 3),
+                   hours=min(case.hours, hours))
+
+
+@dataclass(frozen=True)
+class CutBus:
+    """A multi-day bus whose days are cut to their last ``hours`` (the CI subset's)."""
+
+    bus: object
+    hours: float
+
+    @property
+    def bus_id(self) -> str:
+        return f"{self.bus.bus_id}-last{self.hours:g}h"
+
+    @property
+    def condition(self):
+        return self.bus.condition
+
+
+def ci_jobs(folder: Path, sources: tuple[str, ...] = tuple(SOURCES)) -> list[Job]:
+    """The CI subset: per source (where it can run) its :data:`CI_DAYS` and its
+    :data:`CI_BUSES` bus, each from both log types."""
+    out = []
+    for source in sources:
+        if truth_module(source)[0] is None:
+            continue
+        listed = truth_cases(source, False, 1, 1)
+        for hidden in CI_DAYS[source]:
+            case = cut(next(c for c in listed if c.hidden == hidden), CI_DAY_HOURS)
+            out += [Job(source, log, "day", case, str(folder)) for log in LOGS]
+        bus = CutBus(next(b for b in truth_buses(source, 1, 0)
+                          if b.condition == CI_BUSES[source]), CI_BUS_DAY_HOURS)
+        out += [Job(source, log, "bus", bus, str(folder)) for log in LOGS]
+    return out
+
+
+def bus_days_of(source: str, bus) -> list:
+    """A bus's days (a :class:`CutBus`'s cut)."""
+    module, _ = truth_module(source)
+    if isinstance(bus, CutBus):
+        return [cut(day, bus.hours) for day in module.bus_days(bus.bus)]
+    return module.bus_days(bus)
+
+
+def shard_of(job_list: list[Job], shard: tuple[int, int] | None) -> list[Job]:
+    """Every ``n``-th job from the ``i``-th (``shard`` = (i, n), i from 0): days and buses of
+    every source alternate in the list, so the shards take alike."""
+    if shard is None:
+        return job_list
+    i, n = shard
+    return job_list[i::n]
+
+
+def read_rows(path: Path) -> list[dict]:
+    return json.loads(path.read_text()) if path.exists() else []
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(rows, default=float, indent=1))
+    tmp.replace(path)
+
+
+def print_row(row: dict) -> None:
+    fall = f"; held-out fall {100 * scoring.fall_of(row):.0f} %" if "fall" in row else ""
+    since = f"; since {row['since']}" if row.get("since") else ""
+    line(f"{row['source']}/{row['log']}/{row['case']}", str(row["verdict"] or row["status"]),
+         f"expected {row['expected']}; top {row['top']}; clue {row['clue']}; "
+         f"{row['estimate'] or ''} (truth {row['truth'] or '-'})"
+         + (f"; {row['energy_kwh']:.2f} kWh [{row['energy_interval_kwh'][0]:.2f}, "
+            f"{row['energy_interval_kwh'][1]:.2f}] (truth {row['truth_kwh']:.2f})"
+            if row["energy_kwh"] is not None else "") + fall + since
+         + (f" (+ user's {row['added_values']})" if row["expected"] == "outside_library"
+            and "added_values" in row else "") + f"; {row['time_s']:.0f} s"
+         + ("" if row["verdict"] else f"; {row['why']}"))
 
 
 def out_of_family(folder: Path, smoke: bool, workers: int = 2,
@@ -362,111 +504,77 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   rows_path: Path | None = None, oracle: bool = False,
                   reference: bool = False, effects: tuple[str, ...] = (),
                   resume: bool = False, known_mass: bool = False, ladder: bool = True,
-                  days: int = 1) -> None:
+                  days: int = 1, *, logs: tuple[str, ...] | None = None,
+                  kinds: tuple[str, ...] = KINDS, per_condition: int | None = None,
+                  control_buses: int | None = None, shard: tuple[int, int] | None = None,
+                  tune_source: str = TUNE_SOURCE, generate_only: bool = False) -> list[dict]:
+    """Run the bench's jobs (or a shard of them) and print the report of every row so far;
+    ``smoke``: the CI subset (:func:`ci_jobs`; with ``oracle``, ``reference``, ``known_mass``
+    or ``days``: the smoke days of :func:`truth_cases`).
+
+    ``logs``: the log types (default both; ``current_voltage`` alone: BMS logs only, as
+    before); ``kinds``: single days and/or multi-day buses (the oracle, reference,
+    known-mass and days-per-bus variants are single days'); ``generate_only``: make and
+    cache the days, diagnose nothing."""
     from concurrent.futures import ProcessPoolExecutor
     from functools import partial
     from multiprocessing import get_context
 
-    print("\nOut-of-family truth days (baseline: 12m --without " + ",".join(BASELINE_WITHOUT)
-          + " --calibrate)" + (", logs with the pack's current and voltage"
-                               if current_voltage else "")
+    logs = logs or (("bms",) if current_voltage else LOGS)
+    if oracle or reference or known_mass or days > 1:
+        kinds = ("day",)
+    print("\nOut-of-family truth bench (baseline: 12m --without " + ",".join(BASELINE_WITHOUT)
+          + " --calibrate): " + ", ".join(scoring.LOG_NAMES[g] for g in logs) + "; "
+          + " and ".join("single days" if k == "day" else "multi-day buses" for k in kinds)
           + (", logs with the hidden effect's own power (oracle; control days left out: "
              "they have none)" if oracle else "")
           + (", each against a normal day of the same bus (--reference)" if reference else "")
           + (", the true curb mass held (--known-curb-mass)" if known_mass else "")
-          + (f", {days} days of each bus diagnosed together (--days-per-bus)" if days > 1
-             else ""))
-    jobs = []
-    for source in sources:
-        module, why = truth_module(source)
-        if module is None:
-            print(f"  {why}: skipped")
-            continue
-        if current_voltage and source != "truthsim":
-            print(f"  {source}: its logs have no pack current (SoC only): skipped")
-            continue
-        if days > 1 and source != "truthsim":
-            print(f"  {source}: its days draw their hidden effect each day, not per bus: "
-                  "skipped")
-            continue
-        jobs += [(source, c, str(folder), current_voltage, oracle, reference, known_mass, days)
-                 for c in truth_cases(source, smoke, per_effect, controls, effects)
-                 if not (oracle and c.hidden is None)]
+          + (f", {days} days of each case's bus diagnosed together (--days-per-bus)"
+             if days > 1 else "")
+          + (f"; shard {shard[0]} of {shard[1]}" if shard else ""))
+    if smoke and not (oracle or reference or known_mass or days > 1):  # the CI subset
+        listed = [j for j in ci_jobs(folder, sources) if j.log in logs and j.kind in kinds]
+    else:
+        listed = jobs(folder, smoke, sources, logs, kinds, per_effect, controls, effects,
+                      per_condition, control_buses, oracle, reference, known_mass, days)
+    todo = shard_of(listed, shard)
     rows = []
-    if resume and rows_path is not None and rows_path.exists():  # the days already done
-        rows = json.loads(rows_path.read_text())
-        done = {(r["source"], r["case"]) for r in rows}
-        jobs = [j for j in jobs if (j[0], j[1].case_id) not in done]
-        print(f"  {len(done)} days from {rows_path}, {len(jobs)} to run")
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        for row in pool.map(partial(diagnose_truth_day, ladder=ladder), jobs):
+    if resume and rows_path is not None and rows_path.exists():  # the jobs already done
+        rows = read_rows(rows_path)
+        done = {row_key(r) for r in rows}
+        todo = [j for j in todo if j.key not in done]
+        print(f"  {len(done)} days and buses from {rows_path}, {len(todo)} to run")
+    context = get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+        # every day made once before any is diagnosed (a day's two log types share it)
+        first = {}
+        for job in todo:
+            first.setdefault((job.source, job.kind, item_id(job.item)), job)
+        t0 = time.perf_counter()
+        made = list(pool.map(generate_job, first.values()))
+        if made:
+            print(f"  {len(first)} days and buses generated or found in {folder} in "
+                  f"{time.perf_counter() - t0:.0f} s ({sum(made):.0f} s of work)")
+        if generate_only:
+            return rows
+        for row in pool.map(partial(run_job, ladder=ladder), todo):
             rows.append(row)
-            if rows_path is not None:  # every day so far, for analyses without a re-run
-                tmp = rows_path.with_name(rows_path.name + ".tmp")
-                tmp.write_text(json.dumps(rows, default=float, indent=1))
-                tmp.replace(rows_path)
-            fall = f"; held-out NRMSE fall {100 * row['fall']:.0f} %" if "fall" in row else ""
-            line(f"{row['source']}/{row['case']}", str(row["verdict"] or row["status"]),
-                 f"expected {row['expected']}; top {row['top']}; clue {row['clue']}; "
-                 f"{row['estimate'] or ''} (truth {row['truth'] or '-'})"
-                 + (f"; {row['energy_kwh']:.2f} kWh [{row['energy_interval_kwh'][0]:.2f}, "
-                    f"{row['energy_interval_kwh'][1]:.2f}] (truth {row['truth_kwh']:.2f})"
-                    if row["energy_kwh"] is not None else "") + f"{fall}"
-                 + (f" (+ user's {row['added_values']})" if row["expected"] == "outside_library"
-                    and "added_values" in row else "") + "; "
-                 f"{row['time_s']:.0f} s" + ("" if row["verdict"] else f"; {row['why']}"))
-    report(rows, oracle, workers)
+            if rows_path is not None:  # every job so far, for analyses without a re-run
+                write_rows(rows, rows_path)
+            print_row(row)
+    report(rows, oracle, workers, tune_source)
+    return rows
 
 
-def report(rows, oracle: bool = False, workers: int = 2) -> None:
-    """The confusion matrix, the footprint table and the figures against their bars (the
-    oracle's table on oracle days) of the days' rows."""
-    confusion(rows)
-    footprint_table(rows)
-    if oracle:
-        oracle_table(rows)
-        return
-    f = figures(rows)
-    print("\nFigures against their bars")
-    line("top-1 right over the library's effects", f"{100 * f['top1'][0]:.0f} %",
-         f"bar >= 90 %; {f['top1'][1]} days")
-    line("  the hidden effect ranked first, named or not", f"{100 * f['ranked_first'][0]:.0f} %",
-         f"{f['ranked_first'][1]} days")
-    line("  ... on the days without the right verdict", f"{100 * f['open_ranked_first'][0]:.0f} %",
-         f"{f['open_ranked_first'][1]} days")
-    line("control days with a verdict", f"{100 * f['false_alarms'][0]:.0f} %",
-         f"bar <= 5 %; {f['false_alarms'][1]} days")
-    line("outside library: 'no library effect' + right mode", f"{100 * f['outside'][0]:.0f} %",
-         f"bar >= 80 %; {f['outside'][1]} days")
-    line("control days: 'no library effect' all the same",
-         f"{100 * f['control_outside'][0]:.0f} %", f"{f['control_outside'][1]} days")
-    line("control days whose report names a mode all the same", f"{100 * f['control_clue'][0]:.0f} %",
-         ", ".join(f"{mode} {n}" for mode, n in f["control_modes"]) or "none")
-    line("control days calibrated at an end of a range", f"{100 * f['control_ends'][0]:.0f} %",
-         ", ".join(f"{p} {n}" for p, n in f["control_end_params"]) or "none")
-    if f["resistance_cold"][1] + f["resistance_other"][1]:
-        for which, days in (("cold-battery", "cold"), ("other", "other")):
-            line(f"the voltage shows the pack's resistance changing: {which} days",
-                 f"{100 * f['resistance_' + days][0]:.0f} %",
-                 f"{f['resistance_' + days][1]} days")
-    for effect, fall in sorted(f["fall"].items()):
-        line(f"held-out NRMSE fall, + {effect} (median)", f"{100 * fall:.0f} %", "bar >= 50 %")
-        if effect in f["fall_first_search"]:
-            line("  against the first calibration, not searched again",
-                 f"{100 * f['fall_first_search'][effect]:.0f} %",
-                 "what an unlucky first search adds to the fall")
-        if effect in f["fall_charge"]:
-            line("  the counted charge's held-out NRMSE fall",
-                 f"{100 * f['fall_charge'][effect]:.0f} %", "a log of the pack's current")
-    line("strength within +-25 % (named right)", f"{100 * f['strength'][0]:.0f} %",
-         f"{f['strength'][1]} estimates")
-    line("interval covers the truth", f"{100 * f['coverage'][0]:.0f} %",
-         f"bar >= 80 %; {f['coverage'][1]} estimates")
-    line("the effect's energy within +-25 % (named right)", f"{100 * f['energy'][0]:.0f} %",
-         f"{f['energy'][1]} estimates")
-    line("  its interval covers the truth's", f"{100 * f['energy_coverage'][0]:.0f} %",
-         f"{f['energy_coverage'][1]} estimates")
-    line("diagnose --calibrate per 10 h of log (median)", f"{f['time_s'][0]:.0f} s",
-         f"bar <= 60 s on 2 cores; {workers} days at once on a shared machine")
-    line("  the same, CPU time of the diagnosing process", f"{f['cpu_s'][0]:.0f} s",
-         "what it takes when the process has a core to itself")
+def report(rows, oracle: bool = False, workers: int = 2,
+           tune_source: str = TUNE_SOURCE) -> dict:
+    """The report of rows (:func:`benchmarks.truth.scoring.report`)."""
+    return scoring.report(rows, oracle, workers, tune_source, ORACLE)
+
+
+# the scoring's names, for the benchmarks and tests that read them from here
+figures = scoring.figures
+bus_figures = scoring.bus_figures
+confusion = scoring.confusion
+footprint_table = scoring.footprint_table

@@ -1,4 +1,4 @@
-"""The effects a user writes for the truth bench's two loads the library does not have.
+"""The effects a user writes for the truth bench's loads and forces the library does not have.
 
 On a day whose diagnosis says "no library effect explains it", a transit engineer who knows the
 bus writes the load in the library's effect language and adds it (``ebus diagnose LOG --add
@@ -8,6 +8,8 @@ truth simulator's code or numbers; the ladder fits each one's power (``key_param
 """
 
 from ebus_env import Param, State, effect
+
+GRAVITY_MPS2 = 9.81
 
 
 @effect("pack_chiller", sink="dc_load_w", label="pack chiller while fast charging",
@@ -51,3 +53,22 @@ def air_compressor(air_debt_s, speed_before_mps, door_open, speed_mps, dt_s, pow
     debt = air_debt_s + (run_per_open_s * door_open + leak_duty - running) * dt_s \
         + run_per_braked_mps * braked_mps
     return running * power_w, debt, speed_mps
+
+
+@effect("brake_drag", sink="road_force_n", label="dragging brake", drivers=("speed_mps",),
+        key_params=("force_n",), params=[
+    Param("force_n", 300.0, "N", (0.0, 3000.0), "Drag force of brake pads that do not release"),
+])
+def brake_drag(speed_mps, force_n):
+    """Pads that rub on the disc while the bus rolls: F = F_drag for v > 0, else 0 [N]."""
+    return force_n if speed_mps > 0.0 else 0.0
+
+
+@effect("soft_tyres", sink="road_force_n", label="under-inflated tyres",
+        drivers=("mass_kg", "speed_mps"), key_params=("extra_rolling_coef",), params=[
+    Param("extra_rolling_coef", 0.001, "1", (0.0, 0.01),
+          "Rolling-resistance coefficient the tyres add below their pressure"),
+])
+def soft_tyres(speed_mps, mass_kg, extra_rolling_coef):
+    """Tyres below their pressure flex more and roll harder: F = m g dC_rr for v > 0 [N]."""
+    return mass_kg * GRAVITY_MPS2 * extra_rolling_coef if speed_mps > 0.0 else 0.0
