@@ -1,0 +1,67 @@
+"""The ceiling (``benchmarks/ceiling.py``): its windows, its fit and its standard errors by
+hand, and a day of the truth simulator read through it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+ceiling = pytest.importorskip("benchmarks.ceiling", reason="benchmarks/ not in this checkout")
+
+
+def test_windows_are_means_or_changes_over_whole_windows():
+    values = np.arange(10.0)
+    assert np.array_equal(ceiling.windows(values, 4, False), [1.5, 5.5])  # the rest dropped
+    assert np.array_equal(ceiling.windows(values, 4, True), [3.0, 3.0])
+
+
+def test_newey_west_is_the_ols_covariance_for_white_residuals_without_lags():
+    """With no lags Newey-West is White's covariance; with residuals of one size it is the
+    OLS covariance times n / (n - k) apart (here the same sum of squares)."""
+    rng = np.random.default_rng(0)
+    x = np.column_stack((np.ones(50), rng.normal(size=50)))
+    resid = np.where(rng.random(50) < 0.5, -1.0, 1.0)
+    white = ceiling.newey_west(x, resid, lags=0)
+    assert white == pytest.approx(np.linalg.inv(x.T @ x))
+    # lags add the residuals' autocovariance: positively correlated residuals widen it
+    runs = np.repeat([1.0, -1.0], 25)
+    assert ceiling.newey_west(x, runs, 4)[1, 1] > ceiling.newey_west(x, runs, 0)[1, 1]
+
+
+def test_the_fit_finds_a_signature_the_basis_cannot_make_and_not_one_it_can():
+    rng = np.random.default_rng(1)
+    n = 400
+    basis = np.column_stack((np.ones(n), np.linspace(0.0, 1.0, n)))
+    effect = np.sin(np.linspace(0.0, 12.0, n))
+    noise = rng.normal(0.0, 0.1, n)
+    y = basis @ [0.3, -0.2] + 0.05 * effect + noise
+    found = ceiling.fit(y, basis, effect)
+    # SNR ~ 0.05 / (0.1 / sqrt(n / 2)) ~ 7
+    assert 4.0 < found["snr"] < 11.0
+    absent = ceiling.fit(basis @ [0.3, -0.2] + noise, basis, effect)
+    assert abs(absent["snr"]) < 3.0
+    assert found["rss"] == pytest.approx(absent["rss"], rel=0.05)
+    # a constant load beside a constant base: not identifiable, SNR 0
+    assert ceiling.fit(y, basis, 2.0 * np.ones(n))["snr"] == 0.0
+
+
+@pytest.mark.slow
+def test_a_grade_day_is_separable_on_its_bms_log_and_a_control_day_has_no_effect():
+    """The truth simulator's first grade day and control day, their last hour: the grade's
+    SNR on the BMS log is far above 3 and it beats every other candidate; on the control day
+    no candidate reaches 3 on either log."""
+    source = ceiling.Source("truthsim")
+    listed = ceiling.cases_of(source, False, 1, 1)
+    grade = next(c for c in listed if c.hidden == "road_grade")
+    control = next(c for c in listed if c.hidden is None)
+    cut = [dataclasses.replace(c, start_clock_h=c.start_clock_h + c.hours - 1.0, hours=1.0)
+           for c in (grade, control)]
+    graded = ceiling.ceiling_day(("truthsim", cut[0], None))
+    assert graded["bms"]["separable"] and graded["bms"]["snr"] > 30.0
+    quiet = ceiling.ceiling_day(("truthsim", cut[1], None))
+    assert "snr" not in quiet["bms"] and quiet["bms"]["max_other_snr"] < 3.0
+    # an hour is 12 SoC windows: too few for every parameter free, so nothing is claimed
+    assert quiet["soc"]["windows"] == 12 and quiet["soc"]["max_other_snr"] == 0.0
+    assert "snr" not in graded["soc"]
