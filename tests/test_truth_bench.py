@@ -25,6 +25,9 @@ bench = pytest.importorskip("benchmarks.out_of_family", reason="benchmarks/ not 
 NAMED_RIGHT = {
     # (source, log, case or bus) the CI subset's run named right (docs/truth_bench.md)
     ("truthsim", "soc", "road_grade_00"), ("truthsim", "bms", "road_grade_00"),
+    ("fastsim", "soc", "fastsim_road_grade_00"), ("backward", "soc", "backward_road_grade_00"),
+    ("fastsim", "bms", "fastsim_bus_cabin_heating_00-last1h"),
+    ("fastsim", "soc", "fastsim_bus_cabin_heating_00-last1h"),
 }
 
 

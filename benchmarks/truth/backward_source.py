@@ -282,9 +282,9 @@ def draw_effect(hidden: str | None, rng: np.random.Generator, plan: pd.DataFrame
               "cut_in_nl": rng.uniform(60.0, 120.0)}
     elif hidden == "battery_chiller":
         ph = {"chiller_capacity_w": rng.uniform(10e3, 20e3), "chiller_cop": rng.uniform(2.5, 3.5),
-              "chiller_on_degc": rng.uniform(27.0, 30.0),
+              "chiller_on_degc": rng.uniform(26.0, 28.0),
               "pack_heat_capacity_j_per_k": rng.uniform(1.5e6, 2.2e6),
-              "pack_ha_w_per_k": rng.uniform(30.0, 60.0)}
+              "pack_ha_w_per_k": rng.uniform(20.0, 40.0)}
     elif hidden == "dragging_brake":
         # a misadjusted brake: a constant drag and a viscous part from the pad's rubbing
         ph = {"drag_n": rng.uniform(150.0, 400.0),
