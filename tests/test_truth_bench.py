@@ -1,6 +1,7 @@
 """The out-of-family truth bench in CI: a small fixed subset of its days and buses
-(``bench.ci_jobs``: from each truth source a few single days, the last 2.5 h of each, and one
-multi-day bus of 6 one-hour days, each from its BMS log and its SoC-only log), diagnosed
+(``benchmarks.out_of_family.ci_jobs``: from each truth source a few single days, the last
+2.5 h of each, and one multi-day bus of 6 one-hour days, each from its BMS log and its
+SoC-only log), diagnosed
 calibrated on the bench's baseline bus. On every day and bus the diagnosis may abstain, but
 never names a wrong effect (and names none on a control day or for a load or force outside
 the library); on the jobs of ``NAMED_RIGHT`` the bench's run named the hidden effect, and
