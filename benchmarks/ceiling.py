@@ -11,9 +11,10 @@ simulator, the backward model or FASTSim):
 * a **signature** per candidate effect: the day with the effect less ``y_0`` (the hidden
   effect at its true values; every other effect the source can hide at values drawn for it
   on this day);
-* a **sensitivity** per bus-to-bus parameter: the day with the parameter 5 % higher less
-  ``y_0`` (finite differences of the source itself: curb mass, rolling and air resistance,
-  drivetrain losses, base auxiliaries, pack capacity and resistance);
+* a **sensitivity** per bus-to-bus parameter: the day with the parameter 5 % higher (an
+  efficiency 5 % lower) less ``y_0`` (finite differences of the source itself: curb mass,
+  rolling and air resistance, drivetrain losses, base auxiliaries, pack capacity and
+  resistance);
 * the log's own nuisances: on a BMS log the current sensor's gain (``y_0`` itself) and
   offset (the terminal voltage: offset x V); on a SoC log the BMS's capacity error (``y_0``'s
   SoC change), the current offset's drift (a constant SoC change per window) and its count of
@@ -203,9 +204,11 @@ def ceiling_day(job) -> dict:
         if param not in base:
             continue
         moved = dict(base)
+        # an efficiency moves down (up could pass 1); every other parameter up
+        step = -STEP if "efficiency" in param else STEP
         for key in (param, *COUPLED.get(param, ())):
             if key in moved:
-                moved[key] = moved[key] * (1.0 + STEP)
+                moved[key] = moved[key] * (1.0 + step)
         sensitivities[param] = source.run(plan, moved, None, {}, day)
     measured = {"bms": (log["battery_current_a"] * log["battery_voltage_v"]).to_numpy(float),
                 "soc": log["soc_pct"].to_numpy(float) / 100.0}
@@ -325,7 +328,7 @@ def main(argv: list[str] | None = None) -> None:
         for row in pool.map(ceiling_day, jobs):
             rows.append(row)
             print(f"  {row['source']}/{row['case']}: " + "; ".join(
-                f"{k} SNR {row[k].get('snr', float('nan')):.1f}"
+                (f"{k} SNR {row[k]['snr']:.1f}" if "snr" in row[k] else f"{k} (nothing hidden)")
                 + (" separable" if row[k].get("separable") else "")
                 + f" (others up to {row[k]['max_other_snr']:.1f})" for k in WINDOW_S)
                 + f"; {row['time_s']:.0f} s", flush=True)
