@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ebus_env.envs.batch import C_CHARGER, OBSERVATIONS
+from ebus_env.envs.batch import OBSERVATIONS
 from ebus_env.envs.common import ACTION_LOW, ACTION_SPAN, ACTIONS
 from ebus_env.errors import ConfigError
 
@@ -149,7 +149,7 @@ class FleetChargingRule:
         """This rule for a fleet env: its buses, charger rating, site limit and efficiency."""
         u = getattr(env, "unwrapped", env)
         line = u.lines[0]
-        return cls(name=name, n_buses=u.n, charger_kw=line.const[C_CHARGER] / 1e3,
+        return cls(name=name, n_buses=u.n, charger_kw=line.charger_w / 1e3,
                    site_limit_kw=u.config.site_limit_kw, chargers=u.config.chargers,
                    efficiency=float(u.efficiency[0]),
                    per_bus=replace(RulePolicy(), capacity=line.capacity), **fields)

@@ -11,8 +11,11 @@ A decision is three compiled passes over the buses:
 3. ``_after``: energy, peak, comfort, delay and reserve of the decision, and the new
    observation.
 
-Large batches are split over threads (the compiled passes release the GIL). Per-bus
-bookkeeping lives in ``book`` (columns ``BOOK``), the decision's figures in ``out``
+Large batches are split over threads (the compiled passes release the GIL). The passes take
+the buses as one typed struct, :class:`BatchArrays` (a numba ``structref``: fields by name,
+passed by reference), whose docstring is the one place that says which array carries what;
+``_before`` also takes the decision's actions, passed down from :meth:`BusBatch.step`.
+Per-bus bookkeeping lives in ``book`` (columns ``BOOK``), the decision's figures in ``out``
 (columns ``OUT``), the reward's quantities in ``quantities`` (columns
 :data:`ebus_env.envs.reward.QUANTITIES`).
 """
@@ -24,6 +27,8 @@ from dataclasses import replace
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from ebus_env.config import load_bus
 from ebus_env.effects.vehicle import COMMUTER_SHAPE
@@ -65,12 +70,6 @@ OUT = ("battery_kwh", "grid_kwh", "grid_kw", "peak_grid_kw", "peak_grid_kw_in_st
        "comfort_high_degc", "ambient_degc", "passengers", "empty", "duration_s")
 _OUT = {name: i for i, name in enumerate(OUT)}
 
-# constants of a batch, in one array for the compiled passes
-CONST = ("start_time_h", "service_h", "ambient_amplitude_k", "reserve_soc_pct",
-         "charge_at_terminal", "lap_period_s", "layover_min_s", "jerk_mps3", "decel_mps2",
-         "dt_s", "charger_w", "length_m", "step_m", "soc_min", "at_stops")
-(C_START, C_SERVICE, C_AMPLITUDE, C_RESERVE, C_CHARGE, C_PERIOD, C_LAYOVER,
- C_JERK, C_DECEL, C_DT, C_CHARGER, C_LENGTH, C_STEP, C_SOC_MIN, C_AT_STOPS) = range(len(CONST))
 # indices into the model's arrays (-1: the model has no such input/parameter/state)
 AT = ("in_ambient", "in_passengers", "in_time", "p_setpoint", "p_pulse", "s_soc", "s_speed",
       "s_cabin", "s_distance", "a_motor", "a_charger", "a_shortfall", "a_ohmic",
@@ -82,6 +81,82 @@ SHAPE = np.array(COMMUTER_SHAPE.presets["commuter"].y, float)
 _CONNECTED = reference.ROW_NAMES.index("charger_connected")
 _RATING = reference.ROW_NAMES.index("charger_rating_w")
 THREADS_FROM = 16  # buses per batch from which a decision is split over threads
+
+
+@structref.register
+class BatchArraysType(types.StructRef):
+    """numba's type of a :class:`BatchArrays`."""
+
+
+class BatchArrays(structref.StructRefProxy):
+    """What the compiled passes of a :class:`BusBatch` read and write, by name: the one place
+    that says which array carries what. Row ``b`` of a per-bus array is bus ``b``; the arrays
+    are the batch's own (``BusBatch.states`` is ``states`` here), changed in place only.
+
+    Per bus (``n`` rows):
+
+    ========== ============================== ===================================================
+    field      shape, dtype                   carries
+    ========== ============================== ===================================================
+    params     (n, n_params)                  the model's parameters (``_before`` sets the
+                                              cabin setpoint and pulse duty of the actions)
+    states     (n, n_states)                  the model's states, advanced by its kernel
+    ref        (n, len(STATE_NAMES))          the reference vehicles
+                                              (:data:`ebus_env.envs.reference_vehicle.STATE_NAMES`)
+    inputs     (n, n_inputs, n_rows)          the decision's input rows, written by ``_before``
+    acc        (n, n_accumulators)            the decision's energy sums [J] and extremes
+    book       (n, len(BOOK))                 bookkeeping between decisions (columns ``BOOK``)
+    rows       (n,) int64                     the rows of each bus's last decision
+    obs        (n, len(OBSERVATIONS)) float32 the observation (``OBSERVATIONS``)
+    quantities (n, len(QUANTITIES))           the reward's quantities
+                                              (:data:`ebus_env.envs.reward.QUANTITIES`)
+    out        (n, len(OUT))                  the decision's figures (``OUT``)
+    ========== ============================== ===================================================
+
+    Where the model keeps what the passes use, -1 where it has none: ``at`` (int64, one index
+    per name of ``AT`` into the model's inputs, parameters, states or accumulators, as its
+    prefix says), ``rows_at`` (int64, the model's input of each reference channel,
+    :data:`ebus_env.envs.reference_vehicle.ROW_NAMES`) and ``load_cols`` (int64, the
+    accumulators of the DC loads).
+
+    Constants: ``track`` and ``drive`` (the course and how it is run,
+    :class:`~ebus_env.envs.reference_vehicle.Track` and
+    :class:`~ebus_env.envs.reference_vehicle.Driving`), ``n_rows`` (the rows of a whole
+    decision), ``row_h`` (n_rows,) (each row's time from the decision's start [h]),
+    ``start_time_h`` [h], ``service_h`` [h], ``ambient_amplitude_k`` [K],
+    ``reserve_soc_pct`` [%], ``charger_w`` (the terminal charger's rating [W]) and
+    ``soc_min_frac`` (the pack's SoC floor [1], 0 without one). Made by :class:`BusBatch`;
+    its fields are read in compiled code only.
+    """
+
+
+structref.define_boxing(BatchArraysType, BatchArrays)
+_F64_2D, _F64_1D, _I64_1D = types.float64[:, ::1], types.float64[::1], types.int64[::1]
+BATCH_ARRAYS = BatchArraysType([
+    ("params", _F64_2D), ("states", _F64_2D), ("ref", _F64_2D),
+    ("inputs", types.float64[:, :, ::1]), ("acc", _F64_2D), ("book", _F64_2D),
+    ("rows", _I64_1D), ("obs", types.float32[:, ::1]), ("quantities", _F64_2D),
+    ("out", _F64_2D), ("at", _I64_1D), ("rows_at", _I64_1D), ("load_cols", _I64_1D),
+    ("track", reference.TRACK), ("drive", reference.DRIVING), ("n_rows", types.int64),
+    ("row_h", _F64_1D), ("start_time_h", types.float64), ("service_h", types.float64),
+    ("ambient_amplitude_k", types.float64), ("reserve_soc_pct", types.float64),
+    ("charger_w", types.float64), ("soc_min_frac", types.float64)])
+
+
+@numba.njit(cache=True)
+def _new_batch_arrays(params, states, ref, inputs, acc, book, rows, obs, quantities, out, at,
+                      rows_at, load_cols, track, drive, n_rows, row_h, start_time_h, service_h,
+                      ambient_amplitude_k, reserve_soc_pct, charger_w, soc_min_frac):
+    d = structref.new(BATCH_ARRAYS)
+    d.params, d.states, d.ref, d.inputs, d.acc, d.book = params, states, ref, inputs, acc, book
+    d.rows, d.obs, d.quantities, d.out = rows, obs, quantities, out
+    d.at, d.rows_at, d.load_cols = at, rows_at, load_cols
+    d.track, d.drive, d.n_rows, d.row_h = track, drive, n_rows, row_h
+    d.start_time_h, d.service_h, d.ambient_amplitude_k = (start_time_h, service_h,
+                                                          ambient_amplitude_k)
+    d.reserve_soc_pct, d.charger_w, d.soc_min_frac = reserve_soc_pct, charger_w, soc_min_frac
+    return d
+
 
 @numba.njit(cache=True, nogil=True)
 def ambient_degc(mean_degc, amplitude_k, hour):
@@ -100,28 +175,34 @@ def passengers(capacity, base_frac, peak_frac, hour):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _elapsed_h(book_b, const):
-    return book_b[ELAPSED_ROWS] * const[C_DT] / 3600.0
+def _elapsed_h(book_b, dt_s):
+    return book_b[ELAPSED_ROWS] * dt_s / 3600.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _hour(book_b, const):
-    return (const[C_START] + _elapsed_h(book_b, const)) % 24.0
+def _hour(book_b, start_time_h, dt_s):
+    return (start_time_h + _elapsed_h(book_b, dt_s)) % 24.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _service_left_h(book_b, const):
-    return max(const[C_SERVICE] - _elapsed_h(book_b, const), 0.0)
+def _service_left_h(book_b, service_h, dt_s):
+    return max(service_h - _elapsed_h(book_b, dt_s), 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
-def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h, speed, grade,
-            stop_m, dwell_s, rows_at, n_rows, rows):
-    """Actions in physical units ``values`` (N, 5) -> parameters, input rows, reference, and
-    the rows of the decision of each bus (``rows``: ``n_rows``, or fewer to the next stop)."""
+def _before(lo, hi, values, d):
+    """Pass 1 over buses ``lo..hi-1`` of ``d`` (:class:`BatchArrays`): actions in physical
+    units ``values`` (n, 5, columns as ``ACTIONS``) -> parameters, the reference vehicle's
+    input rows, ambient, passengers and time of day, and the rows of each bus's decision
+    (``rows``: ``n_rows``, or fewer to the next stop)."""
+    book, params, states, ref, inputs, rows = d.book, d.params, d.states, d.ref, d.inputs, d.rows
+    at, rows_at, row_h, n_rows = d.at, d.rows_at, d.row_h, d.n_rows
+    track, drive = d.track, d.drive
+    dt_s, start_h, amplitude_k, charger_w = drive.dt_s, d.start_time_h, d.ambient_amplitude_k, \
+        d.charger_w
     for b in range(lo, hi):
         bk = book[b]
-        hour = _hour(bk, const)
+        hour = _hour(bk, start_h, dt_s)
         if at[P_SETPOINT] >= 0:
             params[b, at[P_SETPOINT]] = values[b, 2]
         if at[P_PULSE] >= 0:
@@ -129,13 +210,10 @@ def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h,
         bk[LAP_BEFORE] = ref[b, reference.LAP]
         bk[CABIN_BEFORE] = states[b, at[S_CABIN]] if at[S_CABIN] >= 0 else math.nan
         bk[DISTANCE_BEFORE] = states[b, at[S_DISTANCE]]
-        rows[b] = reference.advance_one(
-            ref[b], speed, grade, const[C_STEP], stop_m, dwell_s, values[b, 0] / 3.6,
-            values[b, 1], const[C_JERK], const[C_DECEL], const[C_PERIOD], const[C_LAYOVER],
-            const[C_CHARGE], values[b, 3] * const[C_CHARGER], const[C_DT], n_rows, inputs[b],
-            rows_at, const[C_AT_STOPS] > 0.0)
+        rows[b] = reference.advance_one(ref[b], track, drive, values[b, 0] / 3.6, values[b, 1],
+                                        values[b, 3] * charger_w, n_rows, inputs[b], rows_at)
         if at[IN_AMBIENT] >= 0:
-            inputs[b, at[IN_AMBIENT], :] = ambient_degc(bk[AMBIENT_MEAN], const[C_AMPLITUDE], hour)
+            inputs[b, at[IN_AMBIENT], :] = ambient_degc(bk[AMBIENT_MEAN], amplitude_k, hour)
         if at[IN_PASSENGERS] >= 0:
             inputs[b, at[IN_PASSENGERS], :] = passengers(bk[CAPACITY], bk[PASSENGERS_BASE],
                                                          bk[PASSENGERS_PEAK], hour)
@@ -145,24 +223,27 @@ def _before(lo, hi, values, book, params, states, ref, inputs, const, at, row_h,
 
 
 @numba.njit(cache=True, nogil=True)
-def _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s, obs):
-    """The observation of bus ``b`` (``OBSERVATIONS``) into ``obs[b]``."""
-    bk = book[b]
-    hour = _hour(bk, const)
-    ambient = ambient_degc(bk[AMBIENT_MEAN], const[C_AMPLITUDE], hour)
+def _observe(b, d):
+    """The observation of bus ``b`` of ``d`` (``OBSERVATIONS``) into ``d.obs[b]``; returns its
+    schedule delay [s]."""
+    bk, states, at, track, drive = d.book[b], d.states, d.at, d.track, d.drive
+    speed, grade = track.speed_mps, track.grade_frac
+    hour = _hour(bk, d.start_time_h, drive.dt_s)
+    ambient = ambient_degc(bk[AMBIENT_MEAN], d.ambient_amplitude_k, hour)
     people = passengers(bk[CAPACITY], bk[PASSENGERS_BASE], bk[PASSENGERS_PEAK], hour)
     low, high = comfort_band_degc(ambient, people, bk[CAPACITY])
-    r = ref[b]
-    i = min(int(r[reference.S] / const[C_STEP]), len(speed) - 1)
+    r = d.ref[b]
+    i = min(int(r[reference.S] / track.step_m), len(speed) - 1)
     on_layover = r[reference.MODE] == reference.LAYOVER
-    delay_s = reference.schedule_delay_s(r, baseline_s, dwell_s, const[C_STEP], const[C_PERIOD])
+    delay_s = reference.schedule_delay_s(r, track, drive.lap_period_s)
     values = (states[b, at[S_SOC]], states[b, at[S_CABIN]] if at[S_CABIN] >= 0 else 0.0,
               ambient, people, 3.6 * states[b, at[S_SPEED]], hour,
-              0.0 if on_layover else (const[C_LENGTH] - r[reference.S]) / 1e3,
-              delay_s / 60.0, 1.0 if on_layover and const[C_CHARGE] > 0.0 else 0.0,
+              0.0 if on_layover else (track.length_m - r[reference.S]) / 1e3,
+              delay_s / 60.0, 1.0 if on_layover and drive.charge_at_terminal > 0.0 else 0.0,
               3.6 * speed[i], 100.0 * grade[i],
-              _service_left_h(bk, const), low, high, bk[PEAK_KW],
+              _service_left_h(bk, d.service_h, drive.dt_s), low, high, bk[PEAK_KW],
               r[reference.TIMER] / 60.0 if on_layover else 0.0)
+    obs = d.obs
     for k in range(len(values)):
         v = values[k]
         if not math.isfinite(v):
@@ -172,15 +253,20 @@ def _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
 
 
 @numba.njit(cache=True, nogil=True)
-def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, baseline_s,
-           dwell_s, rows, obs, quantities, out):
-    """Score the decision just run (``quantities``, ``out``) and observe the new state."""
+def _after(lo, hi, d):
+    """Pass 3 over buses ``lo..hi-1`` of ``d`` (:class:`BatchArrays`), after the model's
+    kernel: score the decision just run (``quantities``, ``out``) and observe the new state."""
+    book, states, ref, acc, rows = d.book, d.states, d.ref, d.acc, d.rows
+    quantities, out, at, load_cols = d.quantities, d.out, d.at, d.load_cols
+    dt_s, start_h, service_h, amplitude_k = d.drive.dt_s, d.start_time_h, d.service_h, \
+        d.ambient_amplitude_k
+    reserve_soc_pct, soc_min_frac = d.reserve_soc_pct, d.soc_min_frac
     for b in range(lo, hi):
         bk = book[b]
         a = acc[b]
-        hours = rows[b] * const[C_DT] / 3600.0
-        hour = _hour(bk, const)
-        ambient = ambient_degc(bk[AMBIENT_MEAN], const[C_AMPLITUDE], hour)
+        hours = rows[b] * dt_s / 3600.0
+        hour = _hour(bk, start_h, dt_s)
+        ambient = ambient_degc(bk[AMBIENT_MEAN], amplitude_k, hour)
         people = passengers(bk[CAPACITY], bk[PASSENGERS_BASE], bk[PASSENGERS_PEAK], hour)
         # battery chemical energy = motor + DC loads - charger - shortfall + ohmic + coulombic
         chemical_j = a[at[A_MOTOR]] - a[at[A_CHARGER]] - a[at[A_SHORTFALL]] + a[at[A_OHMIC]] \
@@ -202,9 +288,9 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
             late_min = max(new - bk[DEP_DELAY], 0.0) / 60.0
             bk[DEP_DELAY] = new
         soc = states[b, at[S_SOC]]
-        deficit = max(const[C_RESERVE] - 100.0 * soc, 0.0) * hours
+        deficit = max(reserve_soc_pct - 100.0 * soc, 0.0) * hours
         # an empty pack (at its SoC floor, or short of power) ends the bus's service early
-        empty = a[at[A_SHORTFALL]] > 0.0 or soc <= const[C_SOC_MIN]
+        empty = a[at[A_SHORTFALL]] > 0.0 or soc <= soc_min_frac
         q = quantities[b]
         q[0] = chemical_j / J_PER_KWH
         q[1] = grid_kwh
@@ -214,9 +300,8 @@ def _after(lo, hi, book, states, ref, acc, load_cols, const, at, speed, grade, b
         q[5] = deficit
         bk[DECISION] += 1.0
         bk[ELAPSED_ROWS] += rows[b]
-        q[6] = _service_left_h(bk, const) if empty else 0.0
-        delay_s = _observe(b, book, states, ref, const, at, speed, grade, baseline_s, dwell_s,
-                           obs)
+        q[6] = _service_left_h(bk, service_h, dt_s) if empty else 0.0
+        delay_s = _observe(b, d)
         o = out[b]
         o[0] = q[0]
         o[1] = grid_kwh
@@ -258,9 +343,10 @@ def course_of(cfg) -> Course:
 class BusBatch:
     """``n`` buses of one env config (:class:`ebus_env.envs.common.EnvConfig`), in arrays.
 
-    ``params`` (n, n_params), ``states`` (n, n_states): the model's; ``ref`` (n, 9): the
-    reference vehicles; ``inputs`` (n, n_inputs, n_rows): the last decision's input rows;
-    ``acc`` (n, n_acc): its energy sums [J]. ``offsets_s``: each bus's first departure after
+    ``params``, ``states``, ``ref``, ``inputs``, ``acc``, ``book``, ``rows``, ``obs``,
+    ``quantities``, ``out``, ``at`` and ``rows_at`` are the arrays of :class:`BatchArrays`
+    (``arrays``, which the compiled passes take; its docstring says what each carries):
+    change them in place, never rebind them. ``offsets_s``: each bus's first departure after
     the start of service (a fleet's headways); the buses wait on the charger until then.
     """
 
@@ -309,15 +395,8 @@ class BusBatch:
         self.rows_at = np.array([index(m.input_names, name) for name in reference.ROW_NAMES],
                                 np.int64)
         charger_kw = cfg.charger_kw if cfg.charger_kw is not None else m.params[self.power_at]
-        self.const = np.zeros(len(CONST))
-        self.const[:] = (cfg.start_time_h, cfg.service_h,
-                         cfg.ambient_amplitude_k, cfg.reserve_soc_pct,
-                         1.0 if cfg.charge_at_terminal else 0.0, self.lap_period_s,
-                         60.0 * cfg.min_layover_min, cfg.jerk_mps3, cfg.comfort_decel_mps2,
-                         cfg.dt_s, 1e3 * charger_kw, c.length_m, c.step_m,
-                         m.params[soc_min_at] if soc_min_at >= 0 else 0.0,
-                         1.0 if cfg.decide_at_stops else 0.0)
-        self._row_h = np.arange(self.n_rows) * cfg.dt_s / 3600.0
+        self.charger_w = float(1e3 * charger_kw)  # the terminal charger's rating [W]
+        self.soc_min_frac = float(m.params[soc_min_at]) if soc_min_at >= 0 else 0.0
         n_in = len(m.input_names)
         self.params = np.repeat(m.params[None, :], n, axis=0)
         self.states = np.zeros((n, len(m.state_names)))
@@ -328,11 +407,26 @@ class BusBatch:
         self.obs = np.zeros((n, len(OBSERVATIONS)), np.float32)
         self.quantities = np.zeros((n, len(QUANTITIES)))
         self.out = np.zeros((n, len(OUT)))
-        self.values = np.zeros((n, 5))
+        self.rows = np.full(n, self.n_rows, np.int64)  # of each bus's last decision
+        drive = reference.driving(
+            lap_period_s=self.lap_period_s, layover_min_s=60.0 * cfg.min_layover_min,
+            charge_at_terminal=cfg.charge_at_terminal, jerk_mps3=cfg.jerk_mps3,
+            decel_mps2=cfg.comfort_decel_mps2, dt_s=cfg.dt_s, at_stops=cfg.decide_at_stops)
+        self.arrays = _new_batch_arrays(
+            params=self.params, states=self.states, ref=self.ref, inputs=self.inputs,
+            acc=self.acc, book=self.book, rows=self.rows, obs=self.obs,
+            quantities=self.quantities, out=self.out, at=self.at, rows_at=self.rows_at,
+            load_cols=self._load_cols, track=reference.track_of(c), drive=drive,
+            n_rows=self.n_rows, row_h=np.arange(self.n_rows) * cfg.dt_s / 3600.0,
+            start_time_h=float(cfg.start_time_h), service_h=float(cfg.service_h),
+            ambient_amplitude_k=float(cfg.ambient_amplitude_k),
+            reserve_soc_pct=float(cfg.reserve_soc_pct), charger_w=self.charger_w,
+            soc_min_frac=self.soc_min_frac)
+        # the model's kernel (Model.run's arguments): each bus on its own input rows from row
+        # 0 for rows[b] steps, no trace, energy sums into acc
         self._kernel = m.kernel("run")
         self._input_set = np.arange(n, dtype=np.int64)
         self._step0 = np.zeros(n, np.int64)
-        self.rows = np.full(n, self.n_rows, np.int64)  # of each bus's last decision
         self._no_sel = np.zeros(0, np.int64)
         self._no_rec = np.zeros((n, 0, 0), np.float32)
         self._no_mask = np.zeros(1, np.bool_)
@@ -362,39 +456,32 @@ class BusBatch:
         self.observe(b)
 
     def observe(self, b: int) -> np.ndarray:
-        c = self.course
-        _observe(b, self.book, self.states, self.ref, self.const, self.at, c.speed_mps,
-                 c.grade_frac, c.baseline_s, c.dwell_s, self.obs)
+        """Bus ``b``'s observation (``OBSERVATIONS``), a row of ``obs``."""
+        _observe(b, self.arrays)
         return self.obs[b]
 
     # -- a decision ------------------------------------------------------------------------
     def step(self, values: np.ndarray) -> None:
         """One decision of every bus, actions in physical units ``values`` (n, 5) (columns
         as ``ACTIONS``); results in ``obs``, ``quantities``, ``out``, ``acc``."""
-        self.values[:] = values
-        run_chunks(self._chunk, self._edges)
+        def chunk(lo: int, hi: int) -> None:
+            self.drive(lo, hi, values)
+            self.run(lo, hi)
 
-    def _chunk(self, lo: int, hi: int) -> None:
-        self.drive(lo, hi)
-        self.run(lo, hi)
+        run_chunks(chunk, self._edges)
 
-    def drive(self, lo: int, hi: int) -> None:
-        """Pass 1: parameters, ambient, passengers and the reference rows of buses lo..hi-1."""
-        c = self.course
-        _before(lo, hi, self.values, self.book, self.params, self.states, self.ref, self.inputs,
-                self.const, self.at, self._row_h, c.speed_mps, c.grade_frac, c.stop_m,
-                c.dwell_s, self.rows_at, self.n_rows, self.rows)
+    def drive(self, lo: int, hi: int, values: np.ndarray) -> None:
+        """Pass 1 over buses lo..hi-1 under their actions in physical units ``values``
+        (n, 5): parameters, ambient, passengers and the reference rows."""
+        _before(lo, hi, np.ascontiguousarray(values, dtype=np.float64), self.arrays)
 
     def run(self, lo: int, hi: int) -> None:
         """Passes 2 and 3: the physics of buses lo..hi-1, then score and observe them."""
-        c = self.course
         self.acc[lo:hi] = 0.0
         self._kernel(self.params, self.states, self.inputs, self._input_set, self._step0,
                      self.rows, self.config.dt_s, 0, self._no_sel, self._no_rec,
                      self._no_mask, self.acc, lo, hi)
-        _after(lo, hi, self.book, self.states, self.ref, self.acc, self._load_cols, self.const,
-               self.at, c.speed_mps, c.grade_frac, c.baseline_s, c.dwell_s, self.rows,
-               self.obs, self.quantities, self.out)
+        _after(lo, hi, self.arrays)
 
     # -- the charger rows a site shares ---------------------------------------------------
     @property
@@ -441,7 +528,7 @@ class BusBatch:
         hour = (self.config.start_time_h + self.elapsed_h()[b]) % 24.0
         km = self.states[b, self.at[S_DISTANCE]] / 1e3
         soc_pct = 100.0 * self.states[b, self.at[S_SOC]]
-        floor_pct = 100.0 * self.const[C_SOC_MIN]
+        floor_pct = 100.0 * self.soc_min_frac
         why = (f"the BMS opened the pack at its SoC floor ({floor_pct:.0f} %)"
                if soc_pct <= floor_pct + 1e-6 else
                f"the pack could not carry the loads at {soc_pct:.1f} % SoC (its cell voltage "

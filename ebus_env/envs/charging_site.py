@@ -144,8 +144,7 @@ class ChargingSite:
         lines' order; results in each line's ``obs``, ``quantities`` and ``out``."""
         lines = self.lines
         for line, lo, hi in zip(lines, self.edges[:-1], self.edges[1:], strict=True):
-            line.values[:] = values[lo:hi]
-            line.drive(0, line.n)
+            line.drive(0, line.n, values[lo:hi])
         rows = [line.charger_rows() for line in lines]  # views into each line's input rows
         connected, rating = _gather([r[0] for r in rows]), _gather([r[1] for r in rows])
         wanted, held = _share(connected, rating, _gather([line.rows for line in lines]),

@@ -16,7 +16,9 @@ the layover absorbs delay before the next lap starts late.
 One compiled function advances the reference by ``n`` rows from its state vector
 (``STATE_NAMES``), or fewer: with ``at_stops`` it stops after the row in which the vehicle
 departs (from a stop or a layover) or begins a layover, so that decisions fall at stops;
-the environment keeps one state per bus.
+the environment keeps one state per bus. What it drives comes in two typed structs (numba
+``structref``: named fields, passed by reference to compiled code): the course's arrays
+(:class:`Track`) and how the line is run (:class:`Driving`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,10 @@ import math
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
+
+from ebus_env.envs.course import Course
 
 STATE_NAMES = ("s_m", "v_mps", "a_mps2", "mode", "timer_s", "stop", "lap", "time_s",
                "departure_delay_s")
@@ -35,6 +41,87 @@ ROW_NAMES = ("speed_ref_mps", "accel_ref_mps2", "grade_frac", "charger_connected
 LOOKAHEAD_S = 1.0
 TAU_S = 1.0
 ARRIVED_M = 0.3  # a stop this close, nearly standing: arrived (snapped onto it)
+
+_VECTOR = types.float64[::1]
+
+
+@structref.register
+class TrackType(types.StructRef):
+    """numba's type of a :class:`Track`."""
+
+
+class Track(structref.StructRefProxy):
+    """A course's arrays for compiled code (:class:`ebus_env.envs.course.Course`, whose
+    fields these are): ``step_m`` [m] (the grid), ``length_m`` [m] (the terminal),
+    ``speed_mps`` [m/s] and ``grade_frac`` [1] per grid point, ``stop_m`` [m] and
+    ``dwell_s`` [s] per stop, ``baseline_s`` [s] per grid point (the timetable). Made by
+    :func:`track_of`; its fields are read in compiled code only."""
+
+
+structref.define_boxing(TrackType, Track)
+TRACK = TrackType([("step_m", types.float64), ("length_m", types.float64),
+                   ("speed_mps", _VECTOR), ("grade_frac", _VECTOR), ("stop_m", _VECTOR),
+                   ("dwell_s", _VECTOR), ("baseline_s", _VECTOR)])
+
+
+@structref.register
+class DrivingType(types.StructRef):
+    """numba's type of a :class:`Driving`."""
+
+
+class Driving(structref.StructRefProxy):
+    """How the reference vehicle runs its course, for compiled code:
+
+    ``lap_period_s`` [s]: timetable time from one departure to the next (lap plus scheduled
+    layover); ``layover_min_s`` [s]: the shortest layover; ``charge_at_terminal`` (1.0 or
+    0.0): the terminal's charger is connected during layovers; ``jerk_mps3`` [m/s^3] and
+    ``decel_mps2`` [m/s^2]: the driver's comfort limits; ``dt_s`` [s]: the row step;
+    ``at_stops``: end a decision at a departure or the start of a layover. Made by
+    :func:`driving`; its fields are read in compiled code only."""
+
+
+structref.define_boxing(DrivingType, Driving)
+DRIVING = DrivingType([("lap_period_s", types.float64), ("layover_min_s", types.float64),
+                       ("charge_at_terminal", types.float64), ("jerk_mps3", types.float64),
+                       ("decel_mps2", types.float64), ("dt_s", types.float64),
+                       ("at_stops", types.boolean)])
+
+
+@numba.njit(cache=True)
+def _new_track(step_m, length_m, speed_mps, grade_frac, stop_m, dwell_s, baseline_s):
+    t = structref.new(TRACK)
+    t.step_m, t.length_m = step_m, length_m
+    t.speed_mps, t.grade_frac, t.stop_m, t.dwell_s, t.baseline_s = (
+        speed_mps, grade_frac, stop_m, dwell_s, baseline_s)
+    return t
+
+
+def track_of(course: Course) -> Track:
+    """The arrays of ``course`` as a :class:`Track` (they are shared, not copied)."""
+    def vector(x: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(x, dtype=np.float64)
+
+    return _new_track(float(course.step_m), course.length_m, vector(course.speed_mps),
+                      vector(course.grade_frac), vector(course.stop_m), vector(course.dwell_s),
+                      vector(course.baseline_s))
+
+
+@numba.njit(cache=True)
+def _new_driving(lap_period_s, layover_min_s, charge_at_terminal, jerk_mps3, decel_mps2, dt_s,
+                 at_stops):
+    d = structref.new(DRIVING)
+    d.lap_period_s, d.layover_min_s, d.charge_at_terminal = (lap_period_s, layover_min_s,
+                                                             charge_at_terminal)
+    d.jerk_mps3, d.decel_mps2, d.dt_s, d.at_stops = jerk_mps3, decel_mps2, dt_s, at_stops
+    return d
+
+
+def driving(*, lap_period_s: float, layover_min_s: float, charge_at_terminal: bool,
+            jerk_mps3: float, decel_mps2: float, dt_s: float, at_stops: bool = False) -> Driving:
+    """A :class:`Driving` from its fields (see there)."""
+    return _new_driving(float(lap_period_s), float(layover_min_s),
+                        1.0 if charge_at_terminal else 0.0, float(jerk_mps3),
+                        float(decel_mps2), float(dt_s), bool(at_stops))
 
 
 def new_state(first_departure_s: float = 0.0) -> np.ndarray:
@@ -48,11 +135,17 @@ def new_state(first_departure_s: float = 0.0) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
-                 lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, out,
-                 rows_at, at_stops=False):
-    """Advance one reference ``state`` by up to ``n`` rows, writing them into ``out``; returns
-    the rows written (``n``, or fewer with ``at_stops``: see the module docstring)."""
+def advance_one(state, track, drive, v_cap, a_cap, charger_w, n, out, rows_at):
+    """Advance one reference ``state`` by up to ``n`` rows along ``track`` (a :class:`Track`)
+    as ``drive`` (a :class:`Driving`) says, under the caps ``v_cap`` [m/s] and ``a_cap``
+    [m/s^2], a charger of ``charger_w`` [W] on layovers; writes channel ``c`` of
+    ``ROW_NAMES`` into ``out[rows_at[c], :]`` (-1: not written). Returns the rows written
+    (``n``, or fewer with ``drive.at_stops``: see the module docstring)."""
+    speed, grade, stop_m, dwell_s = track.speed_mps, track.grade_frac, track.stop_m, track.dwell_s
+    step_m = track.step_m
+    jerk, decel, dt = drive.jerk_mps3, drive.decel_mps2, drive.dt_s
+    lap_period_s, layover_min_s = drive.lap_period_s, drive.layover_min_s
+    charger_connected, at_stops = drive.charge_at_terminal, drive.at_stops
     last = len(speed) - 1
     final_stop = len(stop_m) - 1
     # the state in locals (registers) while the rows run; written back at the end
@@ -133,28 +226,40 @@ def advance_one(state, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk
     return done
 
 
-@numba.njit(cache=True, nogil=True)
-def advance(states, speed, grade, step_m, stop_m, dwell_s, v_cap, a_cap, jerk, decel,
-            lap_period_s, layover_min_s, charger_connected, charger_w, dt, n, inputs, rows_at):
+def advance(states: np.ndarray, speed: np.ndarray, grade: np.ndarray, step_m: float,
+            stop_m: np.ndarray, dwell_s: np.ndarray, v_cap: np.ndarray, a_cap: np.ndarray,
+            jerk: float, decel: float, lap_period_s: float, layover_min_s: float,
+            charger_connected: float, charger_w: np.ndarray, dt: float, n: int,
+            inputs: np.ndarray, rows_at: np.ndarray) -> None:
     """Advance the reference of each bus ``b`` by ``n`` rows of ``dt`` from ``states[b]``
     (updated in place), writing its rows into ``inputs[b, rows_at[c], :n]`` for each
-    channel ``c`` of ``ROW_NAMES`` (-1: the model does not read it). Per bus: ``v_cap``,
-    ``a_cap``, ``charger_w``; ``lap_period_s``: timetable time from one departure to the
-    next (lap plus scheduled layover)."""
+    channel ``c`` of ``ROW_NAMES`` (-1: the model does not read it), on a course given by its
+    arrays. Per bus: ``v_cap``, ``a_cap``, ``charger_w``; ``lap_period_s``: timetable time from
+    one departure to the next (lap plus scheduled layover). A loop over :func:`advance_one`,
+    for tests and scripts; the environments call that in their compiled passes."""
+    speed = np.ascontiguousarray(speed, dtype=np.float64)
+    track = _new_track(float(step_m), float(stop_m[-1]), speed,
+                       np.ascontiguousarray(grade, dtype=np.float64),
+                       np.ascontiguousarray(stop_m, dtype=np.float64),
+                       np.ascontiguousarray(dwell_s, dtype=np.float64),
+                       np.zeros_like(speed))  # no timetable: advancing does not read it
+    drive = _new_driving(float(lap_period_s), float(layover_min_s), float(charger_connected),
+                         float(jerk), float(decel), float(dt), False)
+    rows_at = np.asarray(rows_at, dtype=np.int64)
     for b in range(states.shape[0]):
-        advance_one(states[b], speed, grade, step_m, stop_m, dwell_s, v_cap[b], a_cap[b],
-                     jerk, decel, lap_period_s, layover_min_s, charger_connected, charger_w[b],
-                     dt, n, inputs[b], rows_at)
+        advance_one(states[b], track, drive, float(v_cap[b]), float(a_cap[b]),
+                    float(charger_w[b]), int(n), inputs[b], rows_at)
 
 
 @numba.njit(cache=True, nogil=True)
-def schedule_delay_s(state, baseline_s, dwell_s, step_m, lap_period_s):
+def schedule_delay_s(state, track, lap_period_s):
     """How late the bus is against the timetable [s] (negative: early). On a layover: how
     late it will leave."""
     if state[MODE] == LAYOVER:
         return max(state[TIME] + state[TIMER] - (state[LAP] + 1) * lap_period_s, 0.0)
-    i = min(int(state[S] / step_m), len(baseline_s) - 1)
+    baseline_s = track.baseline_s
+    i = min(int(state[S] / track.step_m), len(baseline_s) - 1)
     due = state[LAP] * lap_period_s + baseline_s[i]
     if state[MODE] == DWELL:
-        due += dwell_s[int(state[STOP])] - state[TIMER]
+        due += track.dwell_s[int(state[STOP])] - state[TIMER]
     return state[TIME] - due
