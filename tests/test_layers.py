@@ -30,7 +30,7 @@ INNER = {  # layers inside a package, the same way
                        ("ebus_env.model.generate",), ("ebus_env.model.lanes",),
                        ("ebus_env.model.kernels",), ("ebus_env.model.model",)),
     "ebus_env.envs": (("ebus_env.envs.climate", "ebus_env.envs.reward", "ebus_env.envs.reference_vehicle",
-                       "ebus_env.envs.course", "ebus_env.envs.render"),
+                       "ebus_env.envs.course", "ebus_env.envs.render", "ebus_env.envs.env_config"),
                       ("ebus_env.envs.batch",), ("ebus_env.envs.charging_site",),
                       ("ebus_env.envs.common",),
                       ("ebus_env.envs.ebus", "ebus_env.envs.vector", "ebus_env.envs.fleet"),

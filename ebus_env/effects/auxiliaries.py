@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ebus_env.effects.base import Param, effect
 from ebus_env.effects.tables import Table, TableData, lookup1
 
@@ -10,7 +12,7 @@ from ebus_env.effects.tables import Table, TableData, lookup1
     Param("base_power_w", 4000.0, "W", (0.0, 30000.0), "Constant auxiliary load P_aux,0",
           "12 m: 3-5 kW, 18 m: 5-7 kW; TransitBus 5 kW (docs/physics.md §7.1)"),
 ])
-def auxiliaries(base_power_w):
+def auxiliaries(base_power_w: float) -> float:
     """Constant auxiliary load: P_aux = P_aux,0 [W]."""
     return base_power_w
 
@@ -30,7 +32,7 @@ SCHEDULE = Table(
         drivers=("time_of_day_h",), tables=[SCHEDULE], params=[
     Param("scale", 1.0, "1", (0.0, 5.0), "Factor on the scheduled load"),
 ])
-def aux_schedule(time_of_day_h, scale, schedule_w):
+def aux_schedule(time_of_day_h: float, scale: float, schedule_w: np.ndarray) -> float:
     """Auxiliary load that follows the time of day: P = scale * P_sched(t) [W] (a table in the
     bus config, ``tables: {aux_schedule: {schedule_w: {x: [hours], y: [watts]}}}``)."""
     return scale * lookup1(schedule_w, time_of_day_h)
@@ -42,7 +44,7 @@ def aux_schedule(time_of_day_h, scale, schedule_w):
     Param("scale", 1.0, "1", (0.0, 3.0), "Factor on the logged load",
           "1: the load as the log measures it"),
 ])
-def replayed_load(logged_load_w, scale):
+def replayed_load(logged_load_w: float, scale: float) -> float:
     """A load the log measures and the model does not compute, replayed onto the DC bus:
     P = scale * P_logged [W] (the log's ``logged_load_kw``: an HVAC or compressor submeter).
     In a diagnosis it is the candidate "the logged load explains the missing power", and

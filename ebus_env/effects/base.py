@@ -39,6 +39,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numba
+from numba.core.dispatcher import Dispatcher
 
 from ebus_env.effects.tables import Table
 from ebus_env.errors import ConfigError, unknown_name
@@ -75,7 +76,7 @@ class Param:
     source: str = ""
     whole: bool = False
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.name.isidentifier():
             raise ValueError(f"Param name '{self.name}' must be a Python identifier.")
         low, high = self.bounds
@@ -135,9 +136,9 @@ class Effect:
     label: str = ""
     doc: str = ""
     handles: dict[str, str] = field(default_factory=dict)
-    _jitted: dict = field(default_factory=dict, repr=False)
+    _jitted: dict[str, Dispatcher] = field(default_factory=dict, repr=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.name.isidentifier():
             raise ValueError(f"Effect name '{self.name}' must be a Python identifier.")
         if (self.sink is None) == (self.slot is None):
@@ -147,7 +148,7 @@ class Effect:
                 raise unknown_name("sink", self.sink, SINKS)
             if set(self.calls) != {"main"}:
                 raise ValueError(f"Contribution '{self.name}' has exactly one function.")
-        else:
+        elif self.slot is not None:  # (exactly one of the two, checked above)
             if self.slot not in SLOTS:
                 raise unknown_name("slot", self.slot, SLOTS)
             slot = SLOTS[self.slot]
@@ -230,9 +231,12 @@ class Effect:
     @property
     def contribution_name(self) -> str:
         """Name of a contribution's value in traces: effect name + its sink's unit suffix."""
+        if self.sink is None:
+            raise ValueError(f"Effect '{self.name}' fills slot '{self.slot}': only a "
+                             "contribution to a sink has a contribution name.")
         return self.name + SINKS[self.sink].suffix
 
-    def jitted(self, site: str):
+    def jitted(self, site: str) -> Dispatcher:
         """The numba-compiled function of a call site (compiled lazily, inside the kernel)."""
         if site not in self._jitted:
             self._jitted[site] = numba.njit(error_model="numpy", inline="always")(self.calls[site].function)
@@ -264,7 +268,7 @@ def effect(
     label: str = "",
     handles: dict[str, str] | None = None,
     register_effect: bool = True,
-):
+) -> Callable[[Callable], Effect]:
     """Decorator that turns a function into a registered single-call effect.
 
     For a contribution, the function returns the contribution followed by ``returns`` (extra

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ebus_env.effects.base import Call, Effect, Param, State, effect, register
 from ebus_env.effects.tables import Table, TableData, lookup1
 
@@ -91,9 +93,10 @@ BATTERY_PARAMS = (
 )
 
 
-def battery_pack(capacity_factor, resistance_factor, battery_temp_degc, cells_series,
-                 cells_parallel, cell_capacity_ah, cell_resistance_mohm, connection_factor,
-                 activation_energy_j_per_mol):
+def battery_pack(capacity_factor: float, resistance_factor: float, battery_temp_degc: float,
+                 cells_series: float, cells_parallel: float, cell_capacity_ah: float,
+                 cell_resistance_mohm: float, connection_factor: float,
+                 activation_energy_j_per_mol: float) -> tuple[float, float]:
     """Capacity Q [Ah] and resistance R_pack [Ohm] of the aged pack at its temperature, the
     latter before the SoC factor: R = R_pack f(SoC).
 
@@ -108,10 +111,12 @@ def battery_pack(capacity_factor, resistance_factor, battery_temp_degc, cells_se
     return capacity_ah, resistance_ohm
 
 
-def battery_state(soc_frac, bms_open, charger_connected, capacity_ah, pack_resistance_ohm, dt_s,
-                  cells_series, connection_factor, coulombic_efficiency, soc_min_frac,
-                  soc_max_frac, max_charge_c_rate, max_discharge_c_rate, cell_voltage_min_v,
-                  cell_voltage_max_v, ocv_cell_v, resistance_soc_factor):
+def battery_state(soc_frac: float, bms_open: float, charger_connected: float, capacity_ah: float,
+                  pack_resistance_ohm: float, dt_s: float, cells_series: float, connection_factor: float,
+                  coulombic_efficiency: float, soc_min_frac: float, soc_max_frac: float,
+                  max_charge_c_rate: float, max_discharge_c_rate: float, cell_voltage_min_v: float,
+                  cell_voltage_max_v: float, ocv_cell_v: np.ndarray,
+                  resistance_soc_factor: np.ndarray) -> tuple[float, float, float, float, float]:
     """OCV [V], resistance [Ohm] and the current/power limits of this step.
 
     Charge current: the C-rate, no further than ``soc_max_frac`` within the step, and no cell
@@ -141,9 +146,10 @@ def battery_state(soc_frac, bms_open, charger_connected, capacity_ah, pack_resis
     return ocv_v, resistance_ohm, charge_a, charge_w, discharge_w
 
 
-def battery_update(battery_power_w, soc_frac, bms_open, charger_connected, ocv_v,
-                   resistance_ohm, capacity_ah, dt_s, cells_series, connection_factor,
-                   coulombic_efficiency, soc_min_frac):
+def battery_update(battery_power_w: float, soc_frac: float, bms_open: float, charger_connected: float,
+                   ocv_v: float, resistance_ohm: float, capacity_ah: float, dt_s: float,
+                   cells_series: float, connection_factor: float, coulombic_efficiency: float,
+                   soc_min_frac: float) -> tuple[float, float, float, float, float, float, float, float]:
     """Current [A], terminal voltage [V], next SoC, ohmic loss [W], coulombic loss [W], the
     power the pack could not deliver [W] (> 0 only beyond its maximum power OCV^2 / 4R), a
     cell's voltage as the BMS reads it [V] and whether the BMS holds the pack open next: from
@@ -198,7 +204,7 @@ rint_battery = register(Effect(
     Param("resistance_growth", 1.5, "1", (0.0, 3.0),
           "Resistance growth per unit RCD, k_R: R = R_0 (1 + k_R RCD)", "docs/physics.md §5.5: 1-2"),
 ])
-def static_rcd(rcd_frac, resistance_growth):
+def static_rcd(rcd_frac: float, resistance_growth: float) -> tuple[float, float]:
     """Static ageing: capacity factor 1 - RCD and resistance factor 1 + k_R RCD."""
     return 1.0 - rcd_frac, 1.0 + resistance_growth * rcd_frac
 
@@ -208,18 +214,18 @@ def static_rcd(rcd_frac, resistance_growth):
     Param("temperature_degc", 25.0, "degC", (-30.0, 60.0),
           "Pack temperature T held by the thermal management"),
 ])
-def managed_temperature(temperature_degc):
+def managed_temperature(temperature_degc: float) -> float:
     """A thermally managed pack: constant temperature T [degC]."""
     return temperature_degc
 
 
-def pack_temperature(cell_temp_degc):
+def pack_temperature(cell_temp_degc: float) -> float:
     """The pack's temperature over this step: its state."""
     return cell_temp_degc
 
 
-def pack_heat(cell_temp_degc, ambient_degc, battery_loss_w, dt_s, time_constant_h,
-              heat_capacity_j_per_k):
+def pack_heat(cell_temp_degc: float, ambient_degc: float, battery_loss_w: float, dt_s: float,
+              time_constant_h: float, heat_capacity_j_per_k: float) -> float:
     """The pack's temperature after the step: its lumped heat balance
     C dT/dt = Q - hA (T - T_amb), with Q the step's ohmic loss and hA = C / tau."""
     rate_k_per_s = ((ambient_degc - cell_temp_degc) / (3600.0 * time_constant_h)

@@ -51,12 +51,14 @@ _AIR_DENSITY_KG_PER_M3 = 1.2
     State("cabin_temp_degc", "degC", "Cabin air temperature T_cab (starts preconditioned)",
           lambda p, x: p["setpoint_degc"]),
 ])
-def cabin_hvac(cabin_temp_degc, ambient_degc, passengers, door_open, solar_w_per_m2,
-               cabin_heat_w, dt_s, setpoint_degc, deadband_k, ua_w_per_k, heat_capacity_j_per_k,
-               fresh_air_kg_per_s, door_air_m3_per_s, passenger_heat_w, solar_area_m2,
-               heating_max_w, cooling_max_w, heat_pump_max_w, heat_pump_min_ambient_degc,
-               cop_heat_0c, cop_heat_slope_per_k, cop_cool_25c, cop_cool_slope_per_k,
-               fan_power_w, control_gain_w_per_k):
+def cabin_hvac(cabin_temp_degc: float, ambient_degc: float, passengers: float, door_open: float,
+               solar_w_per_m2: float, cabin_heat_w: float, dt_s: float, setpoint_degc: float,
+               deadband_k: float, ua_w_per_k: float, heat_capacity_j_per_k: float,
+               fresh_air_kg_per_s: float, door_air_m3_per_s: float, passenger_heat_w: float,
+               solar_area_m2: float, heating_max_w: float, cooling_max_w: float, heat_pump_max_w: float,
+               heat_pump_min_ambient_degc: float, cop_heat_0c: float, cop_heat_slope_per_k: float,
+               cop_cool_25c: float, cop_cool_slope_per_k: float, fan_power_w: float,
+               control_gain_w_per_k: float) -> tuple[float, float, float]:
     """Electric power of the HVAC [W], its heat into the cabin [W] and the next cabin temperature.
 
     One air node (docs/physics.md §7.2)::

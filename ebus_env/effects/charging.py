@@ -15,7 +15,8 @@ from ebus_env.effects.base import Param, effect
     Param("cc_c_rate", 3.0, "1/h", (0.1, 10.0), "Constant-current charge rate in C",
           "LFP 3C (paper)"),
 ])
-def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
+def cccv_taper(soc_frac: float, capacity_ah: float, cv_soc_pct: float, decay_per_pct: float,
+               cc_c_rate: float) -> tuple[float, float]:
     """Constant current I_cc = c_cc Q and the CV taper factor::
 
         taper = 1                                     SoC <= SoC_cv
@@ -46,9 +47,10 @@ def cccv_taper(soc_frac, capacity_ah, cv_soc_pct, decay_per_pct, cc_c_rate):
     Param("pulse_low_frac", 0.0, "1", (0.0, 1.0),
           "Pulsed charging: current during t_off as a fraction of the pulse current"),
 ])
-def grid_charger(charger_connected, charger_rating_w, cc_current_a, cv_taper,
-                 charge_current_max_a, ocv_v, resistance_ohm, motor_power_w, dc_load_w, time_s,
-                 power_kw, efficiency, pulse_period_s, pulse_duty, pulse_low_frac):
+def grid_charger(charger_connected: float, charger_rating_w: float, cc_current_a: float, cv_taper: float,
+                 charge_current_max_a: float, ocv_v: float, resistance_ohm: float, motor_power_w: float,
+                 dc_load_w: float, time_s: float, power_kw: float, efficiency: float,
+                 pulse_period_s: float, pulse_duty: float, pulse_low_frac: float) -> tuple[float, float]:
     """DC power the charger delivers to the bus [W] and the grid power it draws [W].
 
     While connected, the charger feeds the bus loads and charges the pack with::

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import inspect
 import re
+from collections.abc import Callable, Iterable
 
-from ebus_env.effects.base import registered_effects
+from ebus_env.effects.base import Call, Effect, registered_effects
 from ebus_env.errors import CompositionError
 
 _FIX = ("Fix: effects run compiled, so every function an effect calls needs the @helper "
@@ -14,12 +15,12 @@ _FIX = ("Fix: effects run compiled, so every function an effect calls needs the 
         "math/numpy functions and its parameters (no dicts, strings, lists or Python objects).")
 
 
-def _where(function) -> tuple[str, int, list[str]]:
+def _where(function: Callable) -> tuple[str, int, list[str]]:
     lines, first = inspect.getsourcelines(function)
     return inspect.getsourcefile(function) or "?", first, lines
 
 
-def explain(exc: BaseException, effects=()) -> CompositionError | None:
+def explain(exc: BaseException, effects: Iterable[Effect] = ()) -> CompositionError | None:
     """The effect a numba ``TypingError`` comes from, as a :class:`CompositionError` (None
     when ``exc`` is no compile failure or no effect can be blamed). Where numba names no line
     of an effect (a wrong number or type of return values fails in the generated loop), the
@@ -67,12 +68,12 @@ def explain(exc: BaseException, effects=()) -> CompositionError | None:
     return None
 
 
-def _label(eff, site: str) -> str:
+def _label(eff: Effect, site: str) -> str:
     """An effect's name, with its call site where it has several."""
     return eff.name if site == "main" else f"{eff.name} ({site})"
 
 
-def _wrong_returns(call) -> str | None:
+def _wrong_returns(call: Call) -> str | None:
     """What ``call`` returns when called in Python with 1.0 for every argument, where that is
     not as many numbers as it declares (None when it is, or when the call fails on such
     arguments: then it is not the return values numba tripped over)."""

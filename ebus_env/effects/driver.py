@@ -14,8 +14,9 @@ from ebus_env.effects.base import Param, State, effect
     State("driver_integral_m", "m", "Integral of the speed error (distance behind, clamped)",
           lambda p, x: 0.0),
 ])
-def pi_driver(speed_ref_mps, accel_ref_mps2, speed_mps, max_speed_mps, effective_mass_kg,
-              road_force_n, driver_integral_m, dt_s, kp_per_s, ki_per_s2, integral_limit_m):
+def pi_driver(speed_ref_mps: float, accel_ref_mps2: float, speed_mps: float, max_speed_mps: float,
+              effective_mass_kg: float, road_force_n: float, driver_integral_m: float, dt_s: float,
+              kp_per_s: float, ki_per_s2: float, integral_limit_m: float) -> tuple[float, float]:
     """Wheel force the driver asks for to follow the reference speed.
 
     The target is the reference capped at the vehicle's top speed. With the reference

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ebus_env.effects.base import Call, Effect, Param, helper, register
-from ebus_env.effects.tables import Table, TableData, lookup2
+from ebus_env.effects.tables import Table, TableData, TableValue, lookup2
 
 MOTOR_PARAMS = (
     Param("wheel_radius_m", 0.48, "m", (0.2, 0.7), "Dynamic wheel radius r",
@@ -43,8 +43,8 @@ MOTOR_PARAMS = (
 _MIN_SPEED_MPS = 0.1  # below this the power limit is evaluated at 0.1 m/s (torque limit rules)
 
 
-def limits(speed_mps, wheel_radius_m, gear_ratio, gearbox_efficiency, peak_power_kw,
-           peak_torque_nm, regen_power_kw):
+def limits(speed_mps: float, wheel_radius_m: float, gear_ratio: float, gearbox_efficiency: float,
+           peak_power_kw: float, peak_torque_nm: float, regen_power_kw: float) -> tuple[float, float]:
     """Largest traction and regenerative-braking forces at the wheels [N], both >= 0::
 
         F_trac = min(T_max i eta_g / r, P_max eta_g / v)
@@ -59,7 +59,8 @@ def limits(speed_mps, wheel_radius_m, gear_ratio, gearbox_efficiency, peak_power
 
 
 @helper
-def _shaft(motor_force_n, speed_mps, wheel_radius_m, gear_ratio, gearbox_efficiency):
+def _shaft(motor_force_n: float, speed_mps: float, wheel_radius_m: float, gear_ratio: float,
+           gearbox_efficiency: float) -> tuple[float, float]:
     """Motor torque [N m] and speed [rad/s] for a wheel force and vehicle speed."""
     omega = speed_mps * (gear_ratio / wheel_radius_m)
     if motor_force_n >= 0.0:
@@ -69,8 +70,9 @@ def _shaft(motor_force_n, speed_mps, wheel_radius_m, gear_ratio, gearbox_efficie
     return torque, omega
 
 
-def map_power(motor_force_n, speed_mid_mps, wheel_radius_m, gear_ratio, gearbox_efficiency,
-              peak_torque_nm, max_motor_speed_rpm, loss_map):
+def map_power(motor_force_n: float, speed_mid_mps: float, wheel_radius_m: float, gear_ratio: float,
+              gearbox_efficiency: float, peak_torque_nm: float, max_motor_speed_rpm: float,
+              loss_map: np.ndarray) -> float:
     """DC-bus power of the motor + inverter [W]: P_el = T_m omega + P_loss(T_m, omega), with
     P_loss = L(T_m / T_max, omega / omega_max) T_max omega_max read from ``loss_map``.
     No torque, no loss: the inverter is off when the motor is not asked for torque."""
@@ -83,8 +85,8 @@ def map_power(motor_force_n, speed_mid_mps, wheel_radius_m, gear_ratio, gearbox_
     return torque * omega + loss * (peak_torque_nm * omega_max)
 
 
-def constant_power(motor_force_n, speed_mid_mps, wheel_radius_m, gear_ratio, gearbox_efficiency,
-                   motor_efficiency):
+def constant_power(motor_force_n: float, speed_mid_mps: float, wheel_radius_m: float, gear_ratio: float,
+                   gearbox_efficiency: float, motor_efficiency: float) -> float:
     """DC-bus power with one motor + inverter efficiency eta_m [W]:
     P_el = P_m / eta_m (motoring), P_m eta_m (generating)."""
     torque, omega = _shaft(motor_force_n, speed_mid_mps, wheel_radius_m, gear_ratio,
@@ -96,8 +98,9 @@ def constant_power(motor_force_n, speed_mid_mps, wheel_radius_m, gear_ratio, gea
 
 
 # -- the default loss map --------------------------------------------------------------------
-def loss_model_map(base_speed_frac=0.3, copper=0.04, iron=0.004, eddy=0.002, constant=0.001,
-                   n_torque=41, n_speed=21) -> TableData:
+def loss_model_map(base_speed_frac: float = 0.3, copper: float = 0.04, iron: float = 0.004,
+                   eddy: float = 0.002, constant: float = 0.001, n_torque: int = 41,
+                   n_speed: int = 21) -> TableData:
     """Normalised loss map of a generic PMSM + inverter from a loss model.
 
     With tau = T/T_max, s = omega/omega_max, s_b the base speed (P_max = T_max omega_b) and the
@@ -135,7 +138,7 @@ class LossMapTable(Table):
     """The loss map; a config may give either losses or, more commonly, efficiencies
     (``{x: torque_frac, y: speed_frac, z: efficiency, kind: efficiency}``)."""
 
-    def resolve(self, value=None) -> TableData:
+    def resolve(self, value: TableValue = None) -> TableData:
         if isinstance(value, dict) and value.get("kind") == "efficiency":
             rest = {k: v for k, v in value.items() if k != "kind"}
             return efficiency_to_loss(super().resolve(rest))

@@ -15,8 +15,8 @@ from ebus_env.effects.base import Param, effect, helper
 
 
 @helper
-def _blended(share, wheel_force_demand_n, road_force_n, effective_mass_kg,
-             max_brake_decel_mps2, limit_n):
+def _blended(share: float, wheel_force_demand_n: float, road_force_n: float, effective_mass_kg: float,
+             max_brake_decel_mps2: float, limit_n: float) -> float:
     """``share`` of the braking force, at most the force ``limit_n`` (series blending: the
     motor brakes alone up to ``m a_regen``). The braking force is the driver's demand within
     the brakes' largest deceleration, as the force allocation takes it, so that ``a_regen`` at
@@ -37,8 +37,9 @@ def _blended(share, wheel_force_demand_n, road_force_n, effective_mass_kg,
           "Largest deceleration the motor brakes at alone: harder braking goes to the friction "
           "brakes (series blending)", "Sangtarash et al., SAE 2008-01-1561"),
 ])
-def regen_cutoff(speed_mps, wheel_force_demand_n, road_force_n, effective_mass_kg,
-                 max_brake_decel_mps2, cutoff_speed_mps, max_share, max_decel_mps2):
+def regen_cutoff(speed_mps: float, wheel_force_demand_n: float, road_force_n: float,
+                 effective_mass_kg: float, max_brake_decel_mps2: float, cutoff_speed_mps: float,
+                 max_share: float, max_decel_mps2: float) -> float:
     """Motor share of braking: ``max_share`` above the cutoff speed, 0 below it, and no more
     than the deceleration limit allows, ``share <= m a_regen / |F|`` (series blending).
 
@@ -63,9 +64,10 @@ def regen_cutoff(speed_mps, wheel_force_demand_n, road_force_n, effective_mass_k
     Param("derate_soc_pct", 90.0, "%", (50.0, 99.9),
           "SoC above which the BMS derates the regenerative charge limit, reaching zero at 100 %"),
 ])
-def regen_soc_limit(speed_mps, soc_frac, wheel_force_demand_n, road_force_n, effective_mass_kg,
-                    max_brake_decel_mps2, regen_force_max_n, cutoff_speed_mps, max_share,
-                    max_decel_mps2, derate_soc_pct):
+def regen_soc_limit(speed_mps: float, soc_frac: float, wheel_force_demand_n: float, road_force_n: float,
+                    effective_mass_kg: float, max_brake_decel_mps2: float, regen_force_max_n: float,
+                    cutoff_speed_mps: float, max_share: float, max_decel_mps2: float,
+                    derate_soc_pct: float) -> float:
     """Regenerative braking with the cutoff speed and blending of ``regen_cutoff``, under a
     charge limit the BMS derates near a full pack. The limit falls linearly from the drive's
     own regenerative force F_gen (its torque and P_gen, ``regen_force_max_n``) at SoC_d to zero

@@ -23,7 +23,8 @@ from ebus_env.units import GRAVITY_MPS2
           "ADVISOR RTS06 7.90, Orion VI 7.24 m^2"),
     Param("air_density_kg_per_m3", 1.2, "kg/m^3", (1.0, 1.4), "Air density rho", "ADVISOR 1.23"),
 ])
-def aero_drag(speed_mps, drag_coef, frontal_area_m2, air_density_kg_per_m3):
+def aero_drag(speed_mps: float, drag_coef: float, frontal_area_m2: float,
+              air_density_kg_per_m3: float) -> float:
     """Aerodynamic drag in still air: F = 1/2 rho c_d A v^2 [N]."""
     return 0.5 * air_density_kg_per_m3 * drag_coef * frontal_area_m2 * speed_mps * speed_mps
 
@@ -33,7 +34,7 @@ def aero_drag(speed_mps, drag_coef, frontal_area_m2, air_density_kg_per_m3):
     Param("rolling_coef", 0.008, "1", (0.003, 0.02), "Rolling-resistance coefficient C_rr",
           "ADVISOR 0.008 (Bosch); WVU 0.0094; SwRI 0.01"),
 ])
-def rolling_resistance(speed_mps, mass_kg, grade_frac, rolling_coef):
+def rolling_resistance(speed_mps: float, mass_kg: float, grade_frac: float, rolling_coef: float) -> float:
     """Rolling resistance while moving: F = m g C_rr cos(alpha) [N] for v > 0, else 0
     (a standing bus is held by its brakes, not by rolling resistance)."""
     if speed_mps <= 0.0:
@@ -42,6 +43,6 @@ def rolling_resistance(speed_mps, mass_kg, grade_frac, rolling_coef):
 
 
 @effect("road_grade", sink="road_force_n", label="road grade", drivers=("grade_frac",))
-def road_grade(mass_kg, grade_frac):
+def road_grade(mass_kg: float, grade_frac: float) -> float:
     """Weight component along the road: F = m g sin(alpha) [N] (> 0 uphill)."""
     return mass_kg * GRAVITY_MPS2 * grade_frac * (1.0 / math.sqrt(1.0 + grade_frac * grade_frac))

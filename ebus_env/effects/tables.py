@@ -18,11 +18,14 @@ than ``MAX_POINTS`` points, onto ``MAX_POINTS`` points (breakpoints then move by
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Any
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 _HEADER_1D = 3
 _HEADER_2D = 6
@@ -31,7 +34,7 @@ MAX_POINTS = 2001
 
 
 @numba.njit(error_model="numpy", inline="always")
-def lookup1(table, x):
+def lookup1(table: np.ndarray, x: float) -> float:
     """Linear interpolation in an encoded 1-D table, clamped at the ends.
 
     Written without branches (clamp, then load) so that loops over many buses vectorise."""
@@ -43,7 +46,7 @@ def lookup1(table, x):
 
 
 @numba.njit(error_model="numpy", inline="always")
-def lookup2(table, x, y):
+def lookup2(table: np.ndarray, x: float, y: float) -> float:
     """Bilinear interpolation in an encoded 2-D table, clamped at the edges (branch-free)."""
     ny = int(table[5])
     u = min(max((x - table[0]) * table[1], 0.0), table[2] - 1.0)
@@ -84,7 +87,7 @@ def _check_axis(name: str, x: np.ndarray) -> None:
         raise ValueError(f"Table '{name}': axis values must be finite and strictly increasing.")
 
 
-def encode1(name: str, x, y) -> np.ndarray:
+def encode1(name: str, x: ArrayLike, y: ArrayLike) -> np.ndarray:
     """Encode a 1-D table y(x) onto a uniform grid (see module docstring)."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -97,7 +100,7 @@ def encode1(name: str, x, y) -> np.ndarray:
     return np.concatenate([[x[0], 1.0 / step, n], np.interp(grid, x, y)])
 
 
-def encode2(name: str, x, y, z) -> np.ndarray:
+def encode2(name: str, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> np.ndarray:
     """Encode a 2-D map z(x, y) given on a uniform grid (z has shape (len(x), len(y)))."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -136,6 +139,11 @@ class TableData:
         return encode2(name, self.x, self.y, self.z)
 
 
+TableValue = str | TableData | Mapping[str, Any] | None
+"""A config's value for a table: a preset's name, points, a mapping with keys x, y (z) or None
+(the default preset)."""
+
+
 @dataclass(frozen=True)
 class Table:
     """A compile-time lookup table of an effect.
@@ -160,7 +168,7 @@ class Table:
     presets: dict = field(default_factory=dict)
     default: str = ""
 
-    def resolve(self, value=None) -> TableData:
+    def resolve(self, value: TableValue = None) -> TableData:
         """Return the table points for a config value: None, a preset name or points."""
         if value is None:
             value = self.default

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ebus_env.effects.base import Param, effect
 from ebus_env.effects.tables import Table, TableData, lookup1
 from ebus_env.units import PASSENGER_MASS_KG
@@ -19,7 +21,8 @@ from ebus_env.units import PASSENGER_MASS_KG
     Param("max_brake_decel_mps2", 5.0, "m/s^2", (1.0, 10.0),
           "Largest deceleration the service brakes give", "Typical bus service brake"),
 ])
-def vehicle_body(curb_mass_kg, rotational_mass_factor, max_speed_kmh, max_brake_decel_mps2):
+def vehicle_body(curb_mass_kg: float, rotational_mass_factor: float, max_speed_kmh: float,
+                 max_brake_decel_mps2: float) -> tuple[float, float, float, float]:
     """Rigid body of the bus: curb mass, rotating-mass factor and speed/brake limits."""
     return curb_mass_kg, rotational_mass_factor, max_speed_kmh / 3.6, max_brake_decel_mps2
 
@@ -31,7 +34,7 @@ def vehicle_body(curb_mass_kg, rotational_mass_factor, max_speed_kmh, max_brake_
     Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max",
           "12 m: 70-95 (Solaris Urbino 12: 94); 18 m: 120-150", whole=True),
 ])
-def passenger_load(passenger_count, load_frac, max_passengers):
+def passenger_load(passenger_count: float, load_frac: float, max_passengers: float) -> float:
     """Passengers on board: the measured count where the profile gives one, else
     ``n = load_frac * n_max``."""
     if math.isnan(passenger_count):
@@ -43,7 +46,7 @@ def passenger_load(passenger_count, load_frac, max_passengers):
     Param("passenger_mass_kg", PASSENGER_MASS_KG, "kg", (50.0, 100.0), "Mass per passenger m_p",
           "UN ECE R107 design mass"),
 ])
-def passenger_mass(passengers, passenger_mass_kg):
+def passenger_mass(passengers: float, passenger_mass_kg: float) -> float:
     """Mass of the passengers: m_pax = n * m_p [kg]."""
     return passengers * passenger_mass_kg
 
@@ -65,8 +68,8 @@ COMMUTER_SHAPE = Table(
     Param("peak_frac", 0.9, "1", (0.0, 1.0), "Load at the peaks, fraction of n_max"),
     Param("max_passengers", 85.0, "1", (1.0, 250.0), "Passenger capacity n_max", whole=True),
 ])
-def passenger_schedule(passenger_count, time_of_day_h, base_frac, peak_frac, max_passengers,
-                       load_shape):
+def passenger_schedule(passenger_count: float, time_of_day_h: float, base_frac: float, peak_frac: float,
+                       max_passengers: float, load_shape: np.ndarray) -> float:
     """Passengers over the day: the measured count where the profile has one, else
     n = n_max (base + (peak - base) shape(time of day)), with commuter peaks."""
     if not math.isnan(passenger_count):

@@ -34,6 +34,7 @@ from ebus_env.config import load_bus
 from ebus_env.effects.vehicle import COMMUTER_SHAPE
 from ebus_env.envs import reference_vehicle as reference
 from ebus_env.envs.course import Course, course_from_cycle, course_from_log, course_from_route
+from ebus_env.envs.env_config import EnvConfig
 from ebus_env.envs.reward import QUANTITIES, comfort_band_degc
 from ebus_env.errors import CompositionError, ConfigError
 from ebus_env.model.threads import default_threads, run_chunks
@@ -91,43 +92,39 @@ class BatchArraysType(types.StructRef):
 class BatchArrays(structref.StructRefProxy):
     """What the compiled passes of a :class:`BusBatch` read and write, by name: the one place
     that says which array carries what. Row ``b`` of a per-bus array is bus ``b``; the arrays
-    are the batch's own (``BusBatch.states`` is ``states`` here), changed in place only.
-
-    Per bus (``n`` rows):
-
-    ========== ============================== ===================================================
-    field      shape, dtype                   carries
-    ========== ============================== ===================================================
-    params     (n, n_params)                  the model's parameters (``_before`` sets the
-                                              cabin setpoint and pulse duty of the actions)
-    states     (n, n_states)                  the model's states, advanced by its kernel
-    ref        (n, len(STATE_NAMES))          the reference vehicles
-                                              (:data:`ebus_env.envs.reference_vehicle.STATE_NAMES`)
-    inputs     (n, n_inputs, n_rows)          the decision's input rows, written by ``_before``
-    acc        (n, n_accumulators)            the decision's energy sums [J] and extremes
-    book       (n, len(BOOK))                 bookkeeping between decisions (columns ``BOOK``)
-    rows       (n,) int64                     the rows of each bus's last decision
-    obs        (n, len(OBSERVATIONS)) float32 the observation (``OBSERVATIONS``)
-    quantities (n, len(QUANTITIES))           the reward's quantities
-                                              (:data:`ebus_env.envs.reward.QUANTITIES`)
-    out        (n, len(OUT))                  the decision's figures (``OUT``)
-    ========== ============================== ===================================================
-
-    Where the model keeps what the passes use, -1 where it has none: ``at`` (int64, one index
-    per name of ``AT`` into the model's inputs, parameters, states or accumulators, as its
-    prefix says), ``rows_at`` (int64, the model's input of each reference channel,
-    :data:`ebus_env.envs.reference_vehicle.ROW_NAMES`) and ``load_cols`` (int64, the
-    accumulators of the DC loads).
-
-    Constants: ``track`` and ``drive`` (the course and how it is run,
-    :class:`~ebus_env.envs.reference_vehicle.Track` and
-    :class:`~ebus_env.envs.reference_vehicle.Driving`), ``n_rows`` (the rows of a whole
-    decision), ``row_h`` (n_rows,) (each row's time from the decision's start [h]),
-    ``start_time_h`` [h], ``service_h`` [h], ``ambient_amplitude_k`` [K],
-    ``reserve_soc_pct`` [%], ``charger_w`` (the terminal charger's rating [W]) and
-    ``soc_min_frac`` (the pack's SoC floor [1], 0 without one). Made by :class:`BusBatch`;
-    its fields are read in compiled code only.
+    are the batch's own (``BusBatch.states`` is ``states`` here), changed in place only. Made
+    by :class:`BusBatch`; the fields are read in compiled code only; ``BATCH_ARRAYS`` gives
+    their numba types, in this order. Where the model has no such input, parameter, state or
+    accumulator, an index is -1.
     """
+
+    # -- per bus (n rows), written by the passes and the model's kernel
+    params: np.ndarray  # (n, n_params): the model's parameters (the actions set setpoint, duty)
+    states: np.ndarray  # (n, n_states): the model's states
+    ref: np.ndarray  # (n, len(reference_vehicle.STATE_NAMES)): the reference vehicles
+    inputs: np.ndarray  # (n, n_inputs, n_rows): the decision's input rows
+    acc: np.ndarray  # (n, n_accumulators): the decision's energy sums [J] and extremes
+    book: np.ndarray  # (n, len(BOOK)): bookkeeping between decisions, columns BOOK
+    rows: np.ndarray  # (n,) int64: the rows of each bus's last decision
+    obs: np.ndarray  # (n, len(OBSERVATIONS)) float32: the observations
+    quantities: np.ndarray  # (n, len(reward.QUANTITIES)): the reward's quantities
+    out: np.ndarray  # (n, len(OUT)): the decision's figures
+    # -- where the model keeps what the passes use
+    at: np.ndarray  # (len(AT),) int64: index of each AT name in the model's inputs (in_),
+    #                 parameters (p_), states (s_) or accumulators (a_)
+    rows_at: np.ndarray  # (len(reference_vehicle.ROW_NAMES),) int64: the input of each channel
+    load_cols: np.ndarray  # int64: the accumulators of the DC loads
+    # -- constants
+    track: reference.Track  # the course
+    drive: reference.Driving  # how it is run
+    n_rows: int  # the rows of a whole decision
+    row_h: np.ndarray  # (n_rows,): each row's time from the decision's start [h]
+    start_time_h: float  # the start of service [h]
+    service_h: float  # the length of service [h]
+    ambient_amplitude_k: float  # the day's ambient swing [K]
+    reserve_soc_pct: float  # the SoC reserve below which the reward charges a deficit [%]
+    charger_w: float  # the terminal charger's rating [W]
+    soc_min_frac: float  # the pack's SoC floor [1] (0: none)
 
 
 structref.define_boxing(BatchArraysType, BatchArrays)
@@ -144,10 +141,15 @@ BATCH_ARRAYS = BatchArraysType([
 
 
 @numba.njit(cache=True)
-def _new_batch_arrays(params, states, ref, inputs, acc, book, rows, obs, quantities, out, at,
-                      rows_at, load_cols, track, drive, n_rows, row_h, start_time_h, service_h,
-                      ambient_amplitude_k, reserve_soc_pct, charger_w, soc_min_frac):
-    d = structref.new(BATCH_ARRAYS)
+def _new_batch_arrays(params: np.ndarray, states: np.ndarray, ref: np.ndarray,
+                      inputs: np.ndarray, acc: np.ndarray, book: np.ndarray, rows: np.ndarray,
+                      obs: np.ndarray, quantities: np.ndarray, out: np.ndarray, at: np.ndarray,
+                      rows_at: np.ndarray, load_cols: np.ndarray, track: reference.Track,
+                      drive: reference.Driving, n_rows: int, row_h: np.ndarray,
+                      start_time_h: float, service_h: float, ambient_amplitude_k: float,
+                      reserve_soc_pct: float, charger_w: float,
+                      soc_min_frac: float) -> BatchArrays:
+    d: BatchArrays = structref.new(BATCH_ARRAYS)  # type: ignore[call-arg]  # (numba's typing)
     d.params, d.states, d.ref, d.inputs, d.acc, d.book = params, states, ref, inputs, acc, book
     d.rows, d.obs, d.quantities, d.out = rows, obs, quantities, out
     d.at, d.rows_at, d.load_cols = at, rows_at, load_cols
@@ -159,7 +161,7 @@ def _new_batch_arrays(params, states, ref, inputs, acc, book, rows, obs, quantit
 
 
 @numba.njit(cache=True, nogil=True)
-def ambient_degc(mean_degc, amplitude_k, hour):
+def ambient_degc(mean_degc: float, amplitude_k: float, hour: float) -> float:
     """Daily cycle: coldest at 05:00, warmest at 15:00, half-cosines between."""
     since = (hour - 5.0) % 24.0
     if since <= 10.0:
@@ -168,29 +170,29 @@ def ambient_degc(mean_degc, amplitude_k, hour):
 
 
 @numba.njit(cache=True, nogil=True)
-def passengers(capacity, base_frac, peak_frac, hour):
+def passengers(capacity: float, base_frac: float, peak_frac: float, hour: float) -> float:
     """Commuter day (``COMMUTER_SHAPE``): ``base`` between peaks, ``peak`` at 07:30-09:00
     and 16:30-18:00, as fractions of the capacity."""
     return capacity * (base_frac + (peak_frac - base_frac) * np.interp(hour, SHAPE_H, SHAPE))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _elapsed_h(book_b, dt_s):
+def _elapsed_h(book_b: np.ndarray, dt_s: float) -> float:
     return book_b[ELAPSED_ROWS] * dt_s / 3600.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _hour(book_b, start_time_h, dt_s):
+def _hour(book_b: np.ndarray, start_time_h: float, dt_s: float) -> float:
     return (start_time_h + _elapsed_h(book_b, dt_s)) % 24.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _service_left_h(book_b, service_h, dt_s):
+def _service_left_h(book_b: np.ndarray, service_h: float, dt_s: float) -> float:
     return max(service_h - _elapsed_h(book_b, dt_s), 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
-def _before(lo, hi, values, d):
+def _before(lo: int, hi: int, values: np.ndarray, d: BatchArrays) -> None:
     """Pass 1 over buses ``lo..hi-1`` of ``d`` (:class:`BatchArrays`): actions in physical
     units ``values`` (n, 5, columns as ``ACTIONS``) -> parameters, the reference vehicle's
     input rows, ambient, passengers and time of day, and the rows of each bus's decision
@@ -223,7 +225,7 @@ def _before(lo, hi, values, d):
 
 
 @numba.njit(cache=True, nogil=True)
-def _observe(b, d):
+def _observe(b: int, d: BatchArrays) -> float:
     """The observation of bus ``b`` of ``d`` (``OBSERVATIONS``) into ``d.obs[b]``; returns its
     schedule delay [s]."""
     bk, states, at, track, drive = d.book[b], d.states, d.at, d.track, d.drive
@@ -253,7 +255,7 @@ def _observe(b, d):
 
 
 @numba.njit(cache=True, nogil=True)
-def _after(lo, hi, d):
+def _after(lo: int, hi: int, d: BatchArrays) -> None:
     """Pass 3 over buses ``lo..hi-1`` of ``d`` (:class:`BatchArrays`), after the model's
     kernel: score the decision just run (``quantities``, ``out``) and observe the new state."""
     book, states, ref, acc, rows = d.book, d.states, d.ref, d.acc, d.rows
@@ -319,7 +321,7 @@ def _after(lo, hi, d):
         o[13] = 3600.0 * hours
 
 
-def course_of(cfg) -> Course:
+def course_of(cfg: EnvConfig) -> Course:
     """The line of an env config: laps of a cycle (about an hour between layovers unless
     ``laps_per_trip``), a King County route or a measured log's speed profile."""
     if cfg.route and cfg.log:
@@ -350,7 +352,7 @@ class BusBatch:
     the start of service (a fleet's headways); the buses wait on the charger until then.
     """
 
-    def __init__(self, cfg, n: int, offsets_s: np.ndarray | None = None):
+    def __init__(self, cfg: EnvConfig, n: int, offsets_s: np.ndarray | None = None) -> None:
         if cfg.decision_s < cfg.dt_s or abs(cfg.decision_s / cfg.dt_s
                                              - round(cfg.decision_s / cfg.dt_s)) > 1e-6:
             raise ConfigError(f"decision_s = {cfg.decision_s} must be a multiple of dt_s = "
@@ -366,10 +368,10 @@ class BusBatch:
         self.energy_terms = [name for name, mode in m.layout.accumulators if mode == "sum"]
         self._energy_at = [m.accumulator_names.index(t) for t in self.energy_terms]
 
-        def index(names, name):
+        def index(names: list[str], name: str) -> int:
             return names.index(name) if name in names else -1
 
-        def of_any_effect(param):  # a parameter whichever effect fills its slot
+        def of_any_effect(param: str) -> int:  # a parameter whichever effect fills its slot
             return index(m.param_names, next((p for p in m.param_names
                                               if p.endswith("." + param)), ""))
 
@@ -419,7 +421,7 @@ class BusBatch:
             load_cols=self._load_cols, track=reference.track_of(c), drive=drive,
             n_rows=self.n_rows, row_h=np.arange(self.n_rows) * cfg.dt_s / 3600.0,
             start_time_h=float(cfg.start_time_h), service_h=float(cfg.service_h),
-            ambient_amplitude_k=float(cfg.ambient_amplitude_k),
+            ambient_amplitude_k=cfg.ambient_day[1],
             reserve_soc_pct=float(cfg.reserve_soc_pct), charger_w=self.charger_w,
             soc_min_frac=self.soc_min_frac)
         # the model's kernel (Model.run's arguments): each bus on its own input rows from row
@@ -439,7 +441,8 @@ class BusBatch:
         passenger base and peak (in that order, each uniform)."""
         cfg, m, bk = self.config, self.model, self.book[b]
         bk[:] = 0.0
-        bk[AMBIENT_MEAN] = cfg.ambient_mean_degc + rng.uniform(-1, 1) * cfg.ambient_random_k
+        mean_degc, amplitude_k = cfg.ambient_day
+        bk[AMBIENT_MEAN] = mean_degc + rng.uniform(-1, 1) * cfg.ambient_random_k
         r = cfg.passengers_random_frac
         base = float(np.clip(cfg.passengers_base_frac + rng.uniform(-r, r), 0.0, 1.0))
         bk[PASSENGERS_BASE] = base
@@ -449,7 +452,7 @@ class BusBatch:
         bk[CAPACITY] = self.capacity
         self.ref[b] = reference.new_state(self.offsets_s[b])
         first = {"speed_ref_mps": 0.0,
-                 "ambient_degc": float(ambient_degc(bk[AMBIENT_MEAN], cfg.ambient_amplitude_k,
+                 "ambient_degc": float(ambient_degc(bk[AMBIENT_MEAN], amplitude_k,
                                                     cfg.start_time_h % 24.0))}
         self.states[b] = m.initial_state(self.params[b], first,
                                          soc_start=cfg.soc_start_pct / 100.0)

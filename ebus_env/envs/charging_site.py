@@ -28,8 +28,9 @@ PLUGGED = [o[0] for o in OBSERVATIONS].index("charger_connected")
 
 
 @numba.njit(cache=True, nogil=True)
-def share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers, limit_w,
-               row0):
+def share_site(connected: np.ndarray, rating_w: np.ndarray, efficiency: np.ndarray,
+               plugged: np.ndarray, waiting_since: np.ndarray, chargers: int, limit_w: float,
+               row0: int) -> None:
     """The terminal's charging, row by row (in place): buses on a layover take a free plug
     first come, first served (the others wait unconnected); the plugged buses' charger
     ratings are scaled down together so that their grid draw, sum(P_rated / eta), stays
@@ -70,8 +71,9 @@ def share_site(connected, rating_w, efficiency, plugged, waiting_since, chargers
 
 
 @numba.njit(cache=True, nogil=True)
-def _share(connected, rating_w, rows, efficiency, plugged, waiting_since, chargers, limit_w,
-           row0):
+def _share(connected: np.ndarray, rating_w: np.ndarray, rows: np.ndarray, efficiency: np.ndarray,
+           plugged: np.ndarray, waiting_since: np.ndarray, chargers: int, limit_w: float,
+           row0: int) -> tuple[float, float]:
     """:func:`share_site` (with no charger nobody connects); returns the bus-rows that asked
     for a plug and those that held one, counting each bus's ``rows`` (a last decision may be
     short)."""
@@ -86,7 +88,7 @@ def _share(connected, rating_w, rows, efficiency, plugged, waiting_since, charge
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _live_rows(connected, rows):
+def _live_rows(connected: np.ndarray, rows: np.ndarray) -> float:
     total = 0.0  # sums of 0s and 1s: exact in any order
     for b in range(connected.shape[0]):
         for r in range(rows[b]):

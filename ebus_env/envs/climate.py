@@ -39,7 +39,7 @@ class Climate:
     max_degc: tuple[float, ...]
     source: str
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for key in ("min_degc", "max_degc"):
             values = getattr(self, key)
             if len(values) != 12:

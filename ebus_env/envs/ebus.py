@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ebus_env.envs.batch import OBSERVATIONS, S_SOC, BusBatch
 from ebus_env.envs.common import (
@@ -21,7 +23,7 @@ from ebus_env.envs.common import (
 from ebus_env.errors import ConfigError, EnvError
 
 
-class EBusEnv(gym.Env):
+class EBusEnv(gym.Env[np.ndarray, np.ndarray]):
     """One battery-electric bus through one service day, with ECO-driving, ECO-comfort and
     ECO-charging actions.
 
@@ -110,9 +112,11 @@ class EBusEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 4}
+    action_space: gym.spaces.Box
+    observation_space: gym.spaces.Box
 
     def __init__(self, config: str | Path | dict | None = None, render_mode: str | None = None,
-                 **overrides):
+                 **overrides: Any) -> None:
         self.config = cfg = EnvConfig.load(config, **overrides)
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ConfigError(f"render_mode '{render_mode}': use one of "
@@ -128,7 +132,8 @@ class EBusEnv(gym.Env):
         self._started = self._ended = False
         self._warned: set[str] = set()
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self.buses.reset(0, self.np_random)
         self._history = []
@@ -136,7 +141,7 @@ class EBusEnv(gym.Env):
         self._warned = set()
         return self.buses.obs[0].copy(), {"observation_names": self.observation_names}
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise EnvError("Call reset() before step().")
         if self._ended:
@@ -162,17 +167,19 @@ class EBusEnv(gym.Env):
         self._flag_bounds(info)
         return (buses.obs[0].copy(), info["reward"], self._ended, False, info)
 
-    def _flag_bounds(self, info: dict) -> None:
+    def _flag_bounds(self, info: dict[str, Any]) -> None:
         """Name the observations whose true value lies beyond the observation bounds (the
         observation holds the bound; ``info`` the true value), warning once per episode."""
         info["clipped_observations"] = [name for name, beyond in
                                         clipped_observations(info, self._warned).items() if beyond]
 
-    def render(self):
+    def render(self) -> np.ndarray | None:
         if self.render_mode is None:
             gym.logger.warn("render() without a render_mode: pass render_mode='rgb_array' or "
                             "'human' to gymnasium.make.")
             return None
         from ebus_env.envs.render import draw
 
-        return draw(self, self.render_mode)
+        title = (f"{self.spec.id if self.spec else 'EBus'}: {self.course.name}, "
+                 f"decision {int(self.buses.decisions()[0])}")
+        return draw(self._history, title, self.render_mode)

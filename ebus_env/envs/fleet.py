@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ebus_env.envs.batch import OBS_HIGH, OBS_LOW, OBSERVATIONS, BusBatch
 from ebus_env.envs.charging_site import ChargingSite
@@ -44,7 +46,7 @@ class FleetConfig:
     reward: dict | None = None  # weights of Reward (None: the first line's)
 
     @classmethod
-    def load(cls, source: str | Path | dict | None = None, **overrides) -> FleetConfig:
+    def load(cls, source: str | Path | dict | None = None, **overrides: Any) -> FleetConfig:
         data = config_keys(cls, source, overrides, "fleet")
         if "lines" in data:
             data["lines"] = tuple(data["lines"])
@@ -78,7 +80,7 @@ class FleetConfig:
         return out
 
 
-class EBusFleetEnv(gym.Env):
+class EBusFleetEnv(gym.Env[np.ndarray, np.ndarray]):
     """Battery-electric buses on one or more lines sharing a terminal's chargers and its grid
     connection, with ECO actions per bus chosen by one central agent.
 
@@ -126,10 +128,12 @@ class EBusFleetEnv(gym.Env):
     * v0: first version.
     """
 
-    metadata = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": []}
+    action_space: gym.spaces.Box
+    observation_space: gym.spaces.Box
 
     def __init__(self, config: str | Path | dict | None = None, render_mode: str | None = None,
-                 **overrides):
+                 **overrides: Any) -> None:
         if render_mode is not None:
             raise ConfigError(f"render_mode '{render_mode}': EBusFleet-v0 has no render modes "
                               f"(metadata render_modes is {self.metadata['render_modes']}); leave "
@@ -161,7 +165,8 @@ class EBusFleetEnv(gym.Env):
         self._edges = self.site.edges
         self._started = self._ended = False
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self.site.reset(self.np_random)
         self._site_kw: list[float] = []
@@ -169,7 +174,7 @@ class EBusFleetEnv(gym.Env):
         self._started, self._ended = True, False
         return self._observe(), {"observation_names": self.observation_names}
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise EnvError("Call reset() before step().")
         if self._ended:
@@ -190,7 +195,7 @@ class EBusFleetEnv(gym.Env):
         ended = [line.ended() for line in self.lines]
         depleted = any(d.any() for d, _ in ended)
         terminated = self._ended = bool(depleted or all(e.all() for _, e in ended))
-        info = {"reward_terms": dict(zip(TERMS, costs[0].tolist(), strict=True)),
+        info: dict[str, Any] = {"reward_terms": dict(zip(TERMS, costs[0].tolist(), strict=True)),
                 "site_grid_kw": site_kw, "site_peak_kw": self._peak_kw,
                 "site_limit_kw": self.config.site_limit_kw,
                 "site_load_kw": np.array(self._site_kw), "depleted": depleted,
@@ -203,17 +208,16 @@ class EBusFleetEnv(gym.Env):
             else "end of service" if terminated else ""
         return self._observe(), float(reward[0]), terminated, False, info
 
-    def render(self):
+    def render(self) -> None:
         gym.logger.warn("EBusFleet-v0 does not render (metadata render_modes is empty): the "
                         "site's load is in info['site_load_kw'], each bus's figures in "
                         "info['buses'].")
         return None
 
     def _observe(self) -> np.ndarray:
-        site = self.site
-        buses = site.observations()  # "charger connected": holding a plug
-        free = self.config.chargers - int(site.plugged.sum())
+        buses = self.site.observations()  # "charger connected": holding a plug
+        free = self.config.chargers - int(self.site.plugged.sum())
         site = np.array([self._site_kw[-1] if self._site_kw else 0.0, self._peak_kw, free,
-                         site.waiting()], np.float32)
+                         self.site.waiting()], np.float32)
         obs = np.concatenate([buses.ravel(), site]).astype(np.float32)
         return np.clip(obs, self.observation_space.low, self.observation_space.high)

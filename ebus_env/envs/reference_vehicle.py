@@ -51,11 +51,17 @@ class TrackType(types.StructRef):
 
 
 class Track(structref.StructRefProxy):
-    """A course's arrays for compiled code (:class:`ebus_env.envs.course.Course`, whose
-    fields these are): ``step_m`` [m] (the grid), ``length_m`` [m] (the terminal),
-    ``speed_mps`` [m/s] and ``grade_frac`` [1] per grid point, ``stop_m`` [m] and
-    ``dwell_s`` [s] per stop, ``baseline_s`` [s] per grid point (the timetable). Made by
-    :func:`track_of`; its fields are read in compiled code only."""
+    """A course's arrays for compiled code (the fields of
+    :class:`ebus_env.envs.course.Course`), made by :func:`track_of`. The fields are read in
+    compiled code only; ``TRACK`` gives their numba types, in this order."""
+
+    step_m: float  # the grid's step [m]
+    length_m: float  # the terminal's position: a lap's length [m]
+    speed_mps: np.ndarray  # the reference driver's speed at each grid point [m/s]
+    grade_frac: np.ndarray  # the grade at each grid point [1]
+    stop_m: np.ndarray  # the stops' positions [m], the last the terminal
+    dwell_s: np.ndarray  # the standing time at each stop [s]
+    baseline_s: np.ndarray  # the timetable: time from the lap's start to each grid point [s]
 
 
 structref.define_boxing(TrackType, Track)
@@ -70,14 +76,17 @@ class DrivingType(types.StructRef):
 
 
 class Driving(structref.StructRefProxy):
-    """How the reference vehicle runs its course, for compiled code:
+    """How the reference vehicle runs its course, for compiled code, made by :func:`driving`.
+    The fields are read in compiled code only; ``DRIVING`` gives their numba types, in this
+    order."""
 
-    ``lap_period_s`` [s]: timetable time from one departure to the next (lap plus scheduled
-    layover); ``layover_min_s`` [s]: the shortest layover; ``charge_at_terminal`` (1.0 or
-    0.0): the terminal's charger is connected during layovers; ``jerk_mps3`` [m/s^3] and
-    ``decel_mps2`` [m/s^2]: the driver's comfort limits; ``dt_s`` [s]: the row step;
-    ``at_stops``: end a decision at a departure or the start of a layover. Made by
-    :func:`driving`; its fields are read in compiled code only."""
+    lap_period_s: float  # timetable time from one departure to the next (lap + layover) [s]
+    layover_min_s: float  # the shortest layover [s]
+    charge_at_terminal: float  # 1.0: the terminal's charger is connected on layovers, else 0.0
+    jerk_mps3: float  # the driver's comfort limit on jerk [m/s^3]
+    decel_mps2: float  # the driver's comfort deceleration [m/s^2]
+    dt_s: float  # the row step [s]
+    at_stops: bool  # end a decision at a departure or the start of a layover
 
 
 structref.define_boxing(DrivingType, Driving)
@@ -88,8 +97,9 @@ DRIVING = DrivingType([("lap_period_s", types.float64), ("layover_min_s", types.
 
 
 @numba.njit(cache=True)
-def _new_track(step_m, length_m, speed_mps, grade_frac, stop_m, dwell_s, baseline_s):
-    t = structref.new(TRACK)
+def _new_track(step_m: float, length_m: float, speed_mps: np.ndarray, grade_frac: np.ndarray,
+               stop_m: np.ndarray, dwell_s: np.ndarray, baseline_s: np.ndarray) -> Track:
+    t: Track = structref.new(TRACK)  # type: ignore[call-arg]  # numba passes its typing context
     t.step_m, t.length_m = step_m, length_m
     t.speed_mps, t.grade_frac, t.stop_m, t.dwell_s, t.baseline_s = (
         speed_mps, grade_frac, stop_m, dwell_s, baseline_s)
@@ -107,9 +117,9 @@ def track_of(course: Course) -> Track:
 
 
 @numba.njit(cache=True)
-def _new_driving(lap_period_s, layover_min_s, charge_at_terminal, jerk_mps3, decel_mps2, dt_s,
-                 at_stops):
-    d = structref.new(DRIVING)
+def _new_driving(lap_period_s: float, layover_min_s: float, charge_at_terminal: float,
+                 jerk_mps3: float, decel_mps2: float, dt_s: float, at_stops: bool) -> Driving:
+    d: Driving = structref.new(DRIVING)  # type: ignore[call-arg]  # numba passes its typing context
     d.lap_period_s, d.layover_min_s, d.charge_at_terminal = (lap_period_s, layover_min_s,
                                                              charge_at_terminal)
     d.jerk_mps3, d.decel_mps2, d.dt_s, d.at_stops = jerk_mps3, decel_mps2, dt_s, at_stops
@@ -135,7 +145,8 @@ def new_state(first_departure_s: float = 0.0) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def advance_one(state, track, drive, v_cap, a_cap, charger_w, n, out, rows_at):
+def advance_one(state: np.ndarray, track: Track, drive: Driving, v_cap: float, a_cap: float,
+                charger_w: float, n: int, out: np.ndarray, rows_at: np.ndarray) -> int:
     """Advance one reference ``state`` by up to ``n`` rows along ``track`` (a :class:`Track`)
     as ``drive`` (a :class:`Driving`) says, under the caps ``v_cap`` [m/s] and ``a_cap``
     [m/s^2], a charger of ``charger_w`` [W] on layovers; writes channel ``c`` of
@@ -252,7 +263,7 @@ def advance(states: np.ndarray, speed: np.ndarray, grade: np.ndarray, step_m: fl
 
 
 @numba.njit(cache=True, nogil=True)
-def schedule_delay_s(state, track, lap_period_s):
+def schedule_delay_s(state: np.ndarray, track: Track, lap_period_s: float) -> float:
     """How late the bus is against the timetable [s] (negative: early). On a layover: how
     late it will leave."""
     if state[MODE] == LAYOVER:

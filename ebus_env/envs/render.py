@@ -5,16 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 
-def draw(env, mode: str):
+def draw(history: list[np.ndarray], title: str, mode: str) -> np.ndarray | None:
     """``rgb_array``: an (H, W, 3) uint8 image of the day so far; ``human``: the same in a
-    window (matplotlib)."""
+    window (matplotlib), returning None. ``history``: a row per decision, (hours into
+    service, mean speed [km/h], SoC [1], battery power [kW], grid power [kW], cabin
+    temperature [degC], setpoint [degC])."""
     import matplotlib
 
     if mode == "rgb_array":
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    h = np.array(env._history) if env._history else np.zeros((0, 7))
+    h = np.array(history) if history else np.zeros((0, 7))
     fig, axes = plt.subplots(4, 1, figsize=(6, 6), sharex=True, constrained_layout=True)
     t = h[:, 0]
     axes[0].plot(t, h[:, 1], color="C0")
@@ -32,13 +34,16 @@ def draw(env, mode: str):
     axes[3].set_xlabel("hours into service")
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].set_title(f"{env.spec.id if env.spec else 'EBus'}: {env.course.name}, "
-                      f"decision {int(env.buses.decisions()[0])}")
+    axes[0].set_title(title)
     if mode == "human":
         plt.show(block=False)
         plt.pause(0.001)
         return None
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = fig.canvas
+    assert isinstance(canvas, FigureCanvasAgg)  # the Agg backend, chosen above
+    canvas.draw()
+    image = np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
     plt.close(fig)
     return image

@@ -47,7 +47,7 @@ class Reward:
     lost_service_per_hour: float = 400.0
     weights: np.ndarray = field(init=False, repr=False, compare=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "weights", np.array(
             [self.battery_per_kwh, self.grid_per_kwh, self.peak_per_kw,
              self.comfort_per_kelvin_hour, self.delay_per_min, self.reserve_per_pct_hour,
@@ -62,14 +62,15 @@ class Reward:
         costs = self.costs(quantities)
         return -costs.sum(axis=1), costs
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, float]:
         out = asdict(self)
         out.pop("weights")
         return out
 
 
 @numba.njit(cache=True, nogil=True)
-def comfort_band_degc(ambient_degc, passengers, capacity):
+def comfort_band_degc(ambient_degc: float, passengers: float, capacity: float
+                      ) -> tuple[float, float]:
     """Comfort band of the cabin [degC]: centred at 20 degC up to 15 degC outside and 0.25 K
     warmer per K above (adaptive comfort: people dressed for the weather, after EN 16798-1),
     +-2.5 K wide, narrowed by up to 1 K when the bus is full (crowding)."""

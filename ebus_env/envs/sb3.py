@@ -18,18 +18,24 @@ so PPO steps all sub-envs in one compiled call::
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
 from ebus_env.envs.vector import EBusVectorEnv
+from ebus_env.errors import EnvError
 
 
 class SB3VecEnv(VecEnv):
     """``EBusVectorEnv(num_envs, config, **overrides)`` as a stable-baselines3 ``VecEnv``."""
 
-    def __init__(self, num_envs: int = 8, config=None, **overrides):
+    def __init__(self, num_envs: int = 8, config: str | Path | dict | None = None,
+                 **overrides: Any) -> None:
         self.env = EBusVectorEnv(num_envs=num_envs, config=config,
                                  autoreset_mode=AutoresetMode.SAME_STEP, **overrides)
         super().__init__(self.env.num_envs, self.env.single_observation_space,  # checked
@@ -45,7 +51,9 @@ class SB3VecEnv(VecEnv):
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
 
-    def step_wait(self):
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise EnvError("step_wait() before step_async(actions): give the actions first.")
         obs, reward, terminated, truncated, info = self.env.step(self._actions)
         dones = terminated | truncated
         infos: list[dict] = [{} for _ in range(self.num_envs)]
@@ -57,20 +65,22 @@ class SB3VecEnv(VecEnv):
     def close(self) -> None:
         self.env.close()
 
-    def get_attr(self, attr_name: str, indices=None) -> list:
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         return [getattr(self.env, attr_name)] * len(self._indices(indices))
 
-    def set_attr(self, attr_name: str, value, indices=None) -> None:
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         setattr(self.env, attr_name, value)
 
-    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
+    def env_method(self, method_name: str, *args: Any, indices: VecEnvIndices = None,
+                   **kwargs: Any) -> list[Any]:
         result = getattr(self.env, method_name)(*args, **kwargs)
         return [result] * len(self._indices(indices))
 
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper],
+                       indices: VecEnvIndices = None) -> list[bool]:
         return [False] * len(self._indices(indices))
 
-    def _indices(self, indices) -> Sequence[int]:
+    def _indices(self, indices: VecEnvIndices) -> Sequence[int]:
         if indices is None:
             return range(self.num_envs)
-        return [indices] if isinstance(indices, int) else indices
+        return [indices] if isinstance(indices, int) else list(indices)

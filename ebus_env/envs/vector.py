@@ -10,16 +10,19 @@ from __future__ import annotations
 
 from numbers import Integral
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+from numpy.typing import ArrayLike
 
 from ebus_env.envs import MAX_DECISIONS
 from ebus_env.envs.batch import OBSERVATIONS, BusBatch
 from ebus_env.envs.common import (
     ACTION_NAMES,
+    ACTIONS,
     EnvConfig,
     batch_info,
     checked_actions,
@@ -31,7 +34,7 @@ from ebus_env.envs.common import (
 from ebus_env.errors import ConfigError, EnvError
 
 
-def positive_count(name: str, value, example: str) -> int:
+def positive_count(name: str, value: object, example: str) -> int:
     """``value`` as an int >= 1 (a Python or numpy integer, not a bool), or a clear error
     naming ``name`` and the fix."""
     if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
@@ -56,7 +59,8 @@ class EBusVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, config: str | Path | dict | None = None,
                  max_episode_steps: int = MAX_DECISIONS,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides):
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 **overrides: Any) -> None:
         try:
             mode = AutoresetMode(autoreset_mode)
         except ValueError:
@@ -85,7 +89,8 @@ class EBusVectorEnv(VectorEnv):
         self._elapsed = np.zeros(num_envs, np.int64)
         self._warned: set[str] = set()  # observations warned of as holding their bound
 
-    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | list[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is None or isinstance(seed, int):
             super().reset(seed=seed)
             seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
@@ -102,10 +107,11 @@ class EBusVectorEnv(VectorEnv):
         self._warned = set()
         return self.buses.obs.copy(), {}
 
-    def step(self, actions):
+    def step(self, actions: ArrayLike
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if not self._rngs:
             raise EnvError("Call reset() before step().")
-        values = physical(checked_actions(actions, self.action_space.shape, self.action_names,
+        values = physical(checked_actions(actions, (self.num_envs, len(ACTIONS)), self.action_names,
                                           "EBusVectorEnv"))
         buses = self.buses
         buses.step(values)
@@ -122,7 +128,7 @@ class EBusVectorEnv(VectorEnv):
         if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
             was_ended = self._ended
             restarted = np.flatnonzero(was_ended)
-            for b in restarted:  # the ended episodes start again; their actions are ignored
+            for b in restarted.tolist():  # the ended episodes start again; their actions are ignored
                 self._restart(b)
                 obs[b] = buses.obs[b]
             reward[restarted] = 0.0
@@ -138,7 +144,7 @@ class EBusVectorEnv(VectorEnv):
                 info["final_obs"] = obs.copy()
                 info["final_info"] = info.copy()
                 info["_final_obs"] = info["_final_info"] = final
-                for b in ended:
+                for b in ended.tolist():
                     self._restart(b)
                     obs[b] = buses.obs[b]
         return obs, reward, terminated, truncated, info
@@ -147,5 +153,5 @@ class EBusVectorEnv(VectorEnv):
         self.buses.reset(b, self._rngs[b])
         self._elapsed[b] = 0
 
-    def close_extras(self, **kwargs):
+    def close_extras(self, **kwargs: Any) -> None:
         self._rngs = []
