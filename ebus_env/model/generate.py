@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import textwrap
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,7 +123,7 @@ class _Writer:
                 self.states.append(state.name)
         self.available |= set(self.states)
 
-    def provide(self, names, who: str) -> None:
+    def provide(self, names: Iterable[str], who: str) -> None:
         for name in names:
             if name in self.available:
                 raise CompositionError(
@@ -184,6 +185,7 @@ class _Writer:
         self.call(eff, stage.call, outputs, f"slot '{stage.slot}' ({stage.call})")
         self.lines[start:] = ["    " + line for line in self.lines[start:]]
         self.lines.append("else:")
+        assert slot.none is not None, stage.slot  # a conditional call needs the pass-through
         for name in outputs:
             self.lines.append(f"    {name} = {_literal(slot.none[name])}")
 
@@ -207,6 +209,7 @@ class _Writer:
             if stripped.startswith("{") and stripped.endswith("}"):
                 slot, site = stripped[1:-1].split(".")
                 eff = self.comp.slots[slot]
+                assert eff is not None, slot  # the skeleton re-calls only slots that cannot be empty
                 indent = line[: len(line) - len(line.lstrip())]
                 outputs = list(eff.calls[site].returns)
                 args = self.arguments(eff, site, f"slot '{slot}' ({site})")

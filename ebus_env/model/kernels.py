@@ -18,7 +18,10 @@ import inspect
 import os
 import sys
 import threading
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 import numba
 import numpy as np
@@ -30,11 +33,12 @@ from ebus_env.model.lanes import lane_source
 _LOCK = threading.Lock()
 
 
-def bindings(comp: Composition, calls, python: bool) -> dict:
+def bindings(comp: Composition, calls: Iterable[tuple[str, str]], python: bool
+             ) -> dict[str, Callable]:
     """Globals of a generated module: the functions of ``calls`` ((effect, call site) pairs),
     compiled or plain (``python``), and the template's helpers."""
     effects = {eff.name: eff for eff in comp.effects}
-    names = {}
+    names: dict[str, Callable] = {}
     for effect_name, site in calls:
         eff = effects[effect_name]
         names[function_global(effect_name, site)] = (eff.calls[site].function if python
@@ -79,21 +83,21 @@ def cache_dir() -> Path:
     return path
 
 
-def compile_kernel(comp: Composition, layout: Layout):
+def compile_kernel(comp: Composition, layout: Layout) -> ModuleType:
     """Import the generated module with its loops jitted (``run_compiled``,
     ``run_record_compiled``, ``run_sample_compiled``); each compiles, or loads from the disk
     cache, on first call."""
     return _compile(comp, layout.source, ("run", "run_record", "run_sample"), layout.calls)
 
 
-def compile_lanes(comp: Composition, layout: Layout, varying):
+def compile_lanes(comp: Composition, layout: Layout, varying: Iterable[int]) -> ModuleType:
     """The lane loops for parameters that differ in the columns ``varying`` (:func:`lane_source`),
     jitted as ``run_lanes_compiled`` and ``run_sample_lanes_compiled``."""
     return _compile(comp, lane_source(layout, varying), ("run_lanes", "run_sample_lanes"),
                     layout.calls)
 
 
-def lanes_compiled(comp: Composition, layout: Layout, varying) -> bool:
+def lanes_compiled(comp: Composition, layout: Layout, varying: Iterable[int]) -> bool:
     """Whether the lane loops for ``varying`` are compiled already: imported in this process,
     or ``run_sample_lanes`` in numba's disk cache (its index file) from an earlier one."""
     name = f"ebus_kernel_{kernel_key(comp, lane_source(layout, varying))}"
@@ -101,7 +105,8 @@ def lanes_compiled(comp: Composition, layout: Layout, varying) -> bool:
         (cache_dir() / "__pycache__").glob(f"{name}.run_sample_lanes-*.nbi"))
 
 
-def _compile(comp: Composition, source: str, names, calls):
+def _compile(comp: Composition, source: str, names: Iterable[str],
+             calls: Iterable[tuple[str, str]]) -> ModuleType:
     key = kernel_key(comp, source)
     with _LOCK:
         module_name = f"ebus_kernel_{key}"
@@ -113,6 +118,8 @@ def _compile(comp: Composition, source: str, names, calls):
             tmp.write_text(source)
             os.replace(tmp, path)
         spec = importlib.util.spec_from_file_location(module_name, path)
+        if spec is None or spec.loader is None:
+            raise ImportError(f"Cannot load the generated kernel {path}.")
         module = importlib.util.module_from_spec(spec)
         vars(module).update(bindings(comp, calls, python=False))
         spec.loader.exec_module(module)
@@ -123,8 +130,9 @@ def _compile(comp: Composition, source: str, names, calls):
         return module
 
 
-def python_kernel(comp: Composition, layout: Layout):
+def python_kernel(comp: Composition, layout: Layout) -> dict[str, Callable]:
     """The same loops as plain Python (effects uncompiled): slow, for tests and debugging."""
-    namespace = {**bindings(comp, layout.calls, python=True), "__name__": "ebus_kernel_python"}
+    namespace: dict[str, Any] = {**bindings(comp, layout.calls, python=True),
+                                 "__name__": "ebus_kernel_python"}
     exec(compile(layout.source, "<ebus kernel (python)>", "exec"), namespace)
     return {name: namespace[name] for name in ("run", "run_record", "run_sample")}

@@ -5,6 +5,7 @@ a module of their own for each set of parameters that differ between the buses."
 from __future__ import annotations
 
 import ast
+from collections.abc import Iterable
 
 from ebus_env.model.generate import Layout, param_local
 
@@ -24,10 +25,10 @@ class _ToLanes(ast.NodeTransformer):
     """Rewrite a statement of the step for lane ``g``: variable ``x`` becomes ``W[row(x), g]``,
     parameter ``p`` becomes ``P[j, g]``; functions, tables and constants stay."""
 
-    def __init__(self, rows: dict[str, int], params: dict[str, int]):
+    def __init__(self, rows: dict[str, int], params: dict[str, int]) -> None:
         self.at = {**{n: ("W", j) for n, j in rows.items()}, **{n: ("P", j) for n, j in params.items()}}
 
-    def visit_Name(self, node: ast.Name):
+    def visit_Name(self, node: ast.Name) -> ast.expr:
         if node.id not in self.at:
             return node
         array, j = self.at[node.id]
@@ -35,15 +36,15 @@ class _ToLanes(ast.NodeTransformer):
         return ast.copy_location(ast.Subscript(ast.Name(array, ast.Load()), index, node.ctx), node)
 
 
-def lane_source(layout: Layout, varying) -> str:
+def lane_source(layout: Layout, varying: Iterable[int]) -> str:
     """Source of the lane loops ``run_lanes`` and ``run_sample_lanes`` for buses whose
     parameters differ only in the columns ``varying`` (the others are read once, from the
     first bus)."""
-    varying = sorted(set(varying))
+    columns = sorted(set(varying))
     return "\n".join(
-        layout.header + [f"# lane loops: parameters that differ between lanes: {varying}"]
-        + _lane_loop("run_lanes", layout, "plain", varying)
-        + _lane_loop("run_sample_lanes", layout, "sample", varying)) + "\n"
+        layout.header + [f"# lane loops: parameters that differ between lanes: {columns}"]
+        + _lane_loop("run_lanes", layout, "plain", columns)
+        + _lane_loop("run_sample_lanes", layout, "sample", columns)) + "\n"
 
 
 def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list[str]:
@@ -112,8 +113,8 @@ def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list
         "    inp = inputs[input_set[bus_lo]]",
     ]
     out += [f"    {p} = params[bus_lo, {locals_.index(p)}]" for p in shared_params]
-    for st in placed["call"]:
-        out += lane(st, "    ")
+    for code in placed["call"]:
+        out += lane(code, "    ")
     out += [
         "    for c in range(bus_lo, bus_hi, lanes):",
         f"{i2}{g}",
@@ -123,24 +124,24 @@ def _lane_loop(name: str, layout: Layout, mode: str, varying: list[int]) -> list
     out += [f"{i3}W[{rows[s]}, g] = states[b, {j}]" for j, s in enumerate(layout.states)]
     out += [f"{i3}S[{j}, g] = 0.0" for j in summed]
     out += [f"{i3}S[{j}, g] = acc[b, {j}]" for j in range(n_sum, n_acc)]
-    for st in placed["group"]:
-        out += [f"{i2}{g}"] + lane(st, i3)
+    for code in placed["group"]:
+        out += [f"{i2}{g}"] + lane(code, i3)
     out += [f"{i2}r = 0"] if mode == "sample" else []
     out += [f"{i2}for k in range(n_steps[bus_lo]):",
             f"{i3}row = step0[bus_lo] + k",
             f"{i3}time_s = row * dt_s"]
     out += [f"{i3}{ch} = inp[{j}, row]" for j, ch in enumerate(layout.inputs)]
-    for st in placed["step"]:
-        out += lane(st, i3)
-    for st in each:
-        out += [f"{i3}{g}"] + lane(st, i4)
+    for code in placed["step"]:
+        out += lane(code, i3)
+    for code in each:
+        out += [f"{i3}{g}"] + lane(code, i4)
     if mode == "sample":
         out += [f"{i3}if sample_mask[row]:",
                 f"{i4}for g in range(min(lanes, bus_hi - c)):",
                 f"{i5}record_out[c + g, r, 0] = W[{rows['soc_frac']}, g]",
                 f"{i4}r += 1"]
-    for st in advance:
-        out += [f"{i3}{g}"] + lane(st, i4)
+    for code in advance:
+        out += [f"{i3}{g}"] + lane(code, i4)
     out += [f"{i2}for g in range(min(lanes, bus_hi - c)):", f"{i3}b = c + g"]
     out += [f"{i3}states[b, {j}] = W[{rows[s]}, g]" for j, s in enumerate(layout.states)]
     out += [f"{i3}acc[b, {j}] += S[{j}, g] * dt_s" for j in summed]

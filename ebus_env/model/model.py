@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from numbers import Integral
+from types import ModuleType
+from typing import TYPE_CHECKING, SupportsFloat
 
 import numpy as np
 
 from ebus_env.effects.base import Effect, Param, get_effect
 from ebus_env.effects.compile_errors import explain
+from ebus_env.effects.tables import TableValue
 from ebus_env.errors import CompositionError, ConfigError, EbusError, unknown_name
 from ebus_env.model.generate import Composition, generate
 from ebus_env.model.kernels import compile_kernel, compile_lanes, lanes_compiled, python_kernel
@@ -28,6 +31,9 @@ from ebus_env.model.lanes import LANES_MIN
 from ebus_env.model.threads import default_threads, run_chunks
 from ebus_env.profile import Profile
 from ebus_env.signals import HANDLES, SINKS, SLOTS
+
+if TYPE_CHECKING:
+    from ebus_env.model.results import BatchResult, SimulationResult
 
 
 def _resolve(item: str | Effect) -> Effect:
@@ -55,10 +61,12 @@ class Model:
         self._counts = np.array([i for i, n in enumerate(self.param_names)
                                  if self._declared[n].whole], dtype=int)  # Param.whole
         self._check_in_bounds(self.params, "the model's configured value")
-        self._kernel = None
-        self._lane_kernels = {}  # varying parameter columns -> module of the lane loops
-        self._lanes_cached = {}  # varying parameter columns -> compiled in an earlier process
-        self._python_kernel = None
+        self._kernel: ModuleType | None = None
+        # varying parameter columns -> module of the lane loops
+        self._lane_kernels: dict[frozenset[int], ModuleType] = {}
+        # varying parameter columns -> compiled in an earlier process
+        self._lanes_cached: dict[frozenset[int], bool] = {}
+        self._python_kernel: dict[str, Callable] | None = None
 
     # -- description ------------------------------------------------------------------------
     @property
@@ -215,7 +223,7 @@ class Model:
         initial values (e.g. the cabin preconditioned to its setpoint); ``soc_start`` [0-1] and
         any ``state_name=value`` override them.
         """
-        own = {}
+        own: dict[str, dict[str, float]] = {}
         for (effect, name), value in zip(self.layout.params, params, strict=True):
             own.setdefault(effect, {})[name] = float(value)
         values = {"speed_mps": float(first_inputs.get("speed_ref_mps", 0.0)),
@@ -248,7 +256,8 @@ class Model:
         return np.tile(np.array(row, dtype=float), (n_bus, 1))
 
     # -- running ----------------------------------------------------------------------------
-    def kernel(self, variant: str = "run", varying=None):
+    def kernel(self, variant: str = "run", varying: Collection[int] | None = None
+               ) -> Callable[..., None]:
         """A compiled loop: ``run``, ``run_record``, ``run_sample``, ``run_lanes`` or
         ``run_sample_lanes`` (compiled, or loaded from the disk cache, on first call). The lane
         loops are made for the parameter columns ``varying`` that differ between the buses (the
@@ -310,7 +319,7 @@ class Model:
             record_sel: np.ndarray | None = None, record_out: np.ndarray | None = None,
             acc: np.ndarray | None = None, sample_mask: np.ndarray | None = None,
             threads: int | None = None, python: bool = False, lanes: bool = False,
-            varying=None) -> np.ndarray:
+            varying: Collection[int] | None = None) -> np.ndarray:
         """Advance N buses by ``n_steps`` from ``states`` (updated in place).
 
         Parameters
@@ -409,18 +418,19 @@ class Model:
         return acc
 
     @staticmethod
-    def _shared_rows(input_set, step0, steps, edges) -> bool:
+    def _shared_rows(input_set: np.ndarray, step0: np.ndarray, steps: np.ndarray,
+                     edges: list[int]) -> bool:
         """Whether the lane kernel applies: every bus reads the same input rows and each
         thread has at least ``LANES_MIN`` buses."""
-        return (min(np.diff(edges)) >= LANES_MIN and (input_set == input_set[0]).all()
-                and (step0 == step0[0]).all() and (steps == steps[0]).all())
+        return bool(min(np.diff(edges)) >= LANES_MIN and (input_set == input_set[0]).all()
+                    and (step0 == step0[0]).all() and (steps == steps[0]).all())
 
     def _first_inputs(self, inputs: np.ndarray) -> dict[str, float]:
         return dict(zip(self.input_names, inputs[:, 0], strict=True))
 
     def simulate(self, profile: Profile, params: Mapping[str, float] | np.ndarray | None = None,
                  soc_start: float | None = None, record: bool = True, record_every: int = 1,
-                 python: bool = False, **initial: float):
+                 python: bool = False, **initial: float) -> SimulationResult:
         """Run one bus through a profile.
 
         Parameters
@@ -459,7 +469,7 @@ class Model:
                        record_out=record_out, python=python)
         wall = time.perf_counter() - t0
         self._check_finite(acc[0], profile)
-        trace = record_out[0] if record else None
+        trace = record_out[0] if record_out is not None else None
         return SimulationResult(self, profile, vec, state, states[0], acc[0], trace,
                                 record_every, wall)
 
@@ -476,9 +486,10 @@ class Model:
                 "division by zero, the square root or log of a negative number...). Fix: "
                 "guard that effect's arithmetic, or check its parameters.")
 
-    def simulate_batch(self, profile: Profile, params, soc_start: float | None = None,
-                       record: Sequence[str] = (), record_every: int = 10,
-                       threads: int | None = None, lanes: bool = False):
+    def simulate_batch(self, profile: Profile, params: Sequence[Mapping[str, float]] | np.ndarray,
+                       soc_start: float | None = None, record: Sequence[str] = (),
+                       record_every: int = 10, threads: int | None = None,
+                       lanes: bool = False) -> BatchResult:
         """Run N parameter sets through the same profile in one batched call.
 
         ``params`` is an (N, n_params) matrix or a list of override mappings. ``record`` names
@@ -521,7 +532,7 @@ def differing_columns(params: np.ndarray) -> frozenset[int]:
     return frozenset(np.flatnonzero((bits != bits[:1]).any(axis=0)).tolist())
 
 
-def checked_soc(soc_start) -> float:
+def checked_soc(soc_start: SupportsFloat | str) -> float:
     """A starting SoC as a fraction in [0, 1], or an error that says so (95 is 0.95)."""
     try:
         value = float(soc_start)
@@ -535,7 +546,7 @@ def checked_soc(soc_start) -> float:
     return value
 
 
-def _check_record_every(record_every) -> None:
+def _check_record_every(record_every: object) -> None:
     if isinstance(record_every, bool) or not isinstance(record_every, Integral) \
             or record_every < 1:
         raise ConfigError(f"record_every = {record_every!r}: keep every k-th step, a whole "
@@ -553,7 +564,7 @@ def _first_measured_soc(profile: Profile) -> float | None:
 def build_model(slots: Mapping[str, str | Effect | None] | None = None,
                 contributions: Sequence[str | Effect] = (),
                 params: Mapping[str, Mapping[str, float]] | None = None,
-                tables: Mapping[str, Mapping[str, object]] | None = None,
+                tables: Mapping[str, Mapping[str, TableValue]] | None = None,
                 bounds: Mapping[str, Mapping[str, Sequence[float]]] | None = None,
                 dt_s: float = 0.1, name: str = "") -> Model:
     """Compose effects into a model.
@@ -573,9 +584,9 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
         Time step [s].
     """
     slots = dict(slots or {})
-    for slot in slots:
-        if slot not in SLOTS:
-            raise unknown_name("slot", slot, SLOTS)
+    for given in slots:
+        if given not in SLOTS:
+            raise unknown_name("slot", given, SLOTS)
     chosen: dict[str, Effect | None] = {}
     for slot_name, slot in SLOTS.items():
         choice = slots.get(slot_name, slot.default)
@@ -612,9 +623,9 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
             if effect_name in in_model:
                 values[f"{effect_name}.{pname}"] = float(value)
     box: dict[str, tuple[float, float]] = {}
-    for effect_name, entries in (bounds or {}).items():
+    for effect_name, limits in (bounds or {}).items():
         eff = in_model.get(effect_name) or get_effect(effect_name)
-        for pname, pair in (entries or {}).items():
+        for pname, pair in (limits or {}).items():
             declared = eff.param(pname).bounds
             low, high = (float(v) for v in pair)
             if not declared[0] <= low <= high <= declared[1]:
@@ -622,7 +633,7 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
                     f"Bounds [{low}, {high}] for '{effect_name}.{pname}' must narrow its declared "
                     f"bounds [{declared[0]}, {declared[1]}], not widen them.")
             box[f"{effect_name}.{pname}"] = (low, high)
-    encoded = {}
+    encoded: dict[tuple[str, str], np.ndarray] = {}
     table_values = tables or {}
     for effect_name in table_values:
         eff = in_model.get(effect_name) or get_effect(effect_name)
@@ -630,9 +641,9 @@ def build_model(slots: Mapping[str, str | Effect | None] | None = None,
             eff.table(tname)
     for eff in in_model.values():
         for table in eff.tables:
-            value = (table_values.get(eff.name) or {}).get(table.name)
+            chosen_points = (table_values.get(eff.name) or {}).get(table.name)
             try:
-                points = table.resolve(value)
+                points = table.resolve(chosen_points)
                 encoded[(eff.name, table.name)] = points.encode(table.name)
             except ValueError as exc:
                 raise ConfigError(f"Effect '{eff.name}': {exc}") from exc

@@ -13,17 +13,44 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from ebus_env.units import J_PER_KWH
 
+if TYPE_CHECKING:
+    import pandas as pd
 
-def _state(model, vector, name):
+    from ebus_env.profile import Profile
+
+
+class _Terms(Protocol):
+    road_terms: list[str]
+    load_terms: list[str]
+
+
+class RunModel(Protocol):
+    """What a result reads of the model that ran (a :class:`ebus_env.model.model.Model`)."""
+
+    @property
+    def state_names(self) -> list[str]: ...
+
+    @property
+    def accumulator_names(self) -> list[str]: ...
+
+    @property
+    def trace_names(self) -> list[str]: ...
+
+    @property
+    def layout(self) -> _Terms: ...
+
+
+def _state(model: RunModel, vector: np.ndarray, name: str) -> float:
     return float(vector[model.state_names.index(name)])
 
 
-def battery_energy_j(model, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def battery_energy_j(model: RunModel, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Energy out of the battery's terminals and out of its chemical store [J], from
     accumulators (one row per bus): terminal = motor + DC loads - charger;
     chemical = terminal - shortfall + ohmic + coulombic losses."""
@@ -35,8 +62,8 @@ def battery_energy_j(model, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return terminal, chemical
 
 
-def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
-              profile) -> dict:
+def summarize(model: RunModel, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
+              profile: Profile) -> dict[str, Any]:
     """Figures of one run from its accumulators, its first/last state and its profile."""
     a = {k: float(v) for k, v in zip(model.accumulator_names, acc, strict=True)}
     kwh = {k: float(v) / J_PER_KWH for k, v in a.items()}
@@ -95,8 +122,8 @@ def summarize(model, acc: np.ndarray, initial: np.ndarray, final: np.ndarray,
 class SimulationResult:
     """One bus through one profile."""
 
-    model: object
-    profile: object
+    model: RunModel
+    profile: Profile
     params: np.ndarray
     initial_state: np.ndarray
     final_state: np.ndarray
@@ -105,7 +132,7 @@ class SimulationResult:
     record_every: int
     wall_time_s: float
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """Figures with units in their keys (``distance_km``, ``kwh_per_km``, ...), the energy
         breakdown by effect (``breakdown_kwh``) and, when the profile carries measured SoC, the
         SoC error (``soc_rmse_pct``, ``soc_max_abs_error_pct``, ``soc_end_error_pct``)."""
@@ -125,7 +152,7 @@ class SimulationResult:
     def time_s(self) -> np.ndarray:
         return self.profile.time_s[:: self.record_every]
 
-    def soc_error_samples(self):
+    def soc_error_samples(self) -> tuple[np.ndarray, float] | None:
         """(model - measured SoC [%-points] where measured, measured range [%]) or None."""
         measured = self.profile.measured.get("soc_frac")
         if measured is None or self.trace_array is None:
@@ -137,7 +164,7 @@ class SimulationResult:
         err = 100.0 * (self.trace("soc_frac")[ok] - meas[ok])
         return err, 100.0 * float(np.max(meas[ok]) - np.min(meas[ok]))
 
-    def soc_error(self) -> dict:
+    def soc_error(self) -> dict[str, float]:
         """SoC error against the profile's measured SoC, in %-points (empty if none); the
         NRMSE divides the RMSE by the measured SoC range (the paper's eq. 1)."""
         samples = self.soc_error_samples()
@@ -155,7 +182,7 @@ class SimulationResult:
             "soc_end_error_pct": float(100.0 * (end_model - measured[last])),
         }
 
-    def trace_frame(self):
+    def trace_frame(self) -> pd.DataFrame:
         """The trace as a pandas DataFrame: ``time_s``, every signal, measured signals."""
         import pandas as pd
 
@@ -176,8 +203,8 @@ class SimulationResult:
 class BatchResult:
     """N parameter sets through one profile."""
 
-    model: object
-    profile: object
+    model: RunModel
+    profile: Profile
     params: np.ndarray
     initial_states: np.ndarray
     final_states: np.ndarray
@@ -190,7 +217,7 @@ class BatchResult:
     def __len__(self) -> int:
         return len(self.params)
 
-    def summary(self, i: int) -> dict:
+    def summary(self, i: int) -> dict[str, Any]:
         return summarize(self.model, self.accumulators[i], self.initial_states[i],
                          self.final_states[i], self.profile)
 

@@ -50,7 +50,8 @@ class Code:
 
 
 @numba.njit(error_model="numpy", inline="always")
-def move(wheel_force_n, road_force_n, effective_mass_kg, speed_mps, dt_s):
+def move(wheel_force_n: float, road_force_n: float, effective_mass_kg: float, speed_mps: float,
+         dt_s: float) -> tuple[float, float, float]:
     """Advance the speed one step: m_eff a = F_wheel - F_road, v_next = v + a dt.
 
     The bus never rolls backwards: when v_next would be negative the brakes stop it at

@@ -4,6 +4,7 @@ buses run in parallel on threads."""
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
 
 _POOL: ThreadPoolExecutor | None = None
@@ -21,7 +22,7 @@ def _pool() -> ThreadPoolExecutor:
     return _POOL
 
 
-def run_chunks(fn, edges) -> None:
+def run_chunks(fn: Callable[[int, int], None], edges: Sequence[int]) -> None:
     """Call ``fn(lo, hi)`` for each chunk ``edges[i]..edges[i+1]``, all at once: the first on
     this thread (one hand-off fewer), the others on a shared pool (the compiled passes release
     the GIL). Returns when every chunk is done; re-raises the first error."""
