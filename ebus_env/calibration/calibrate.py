@@ -3,19 +3,28 @@ each parameter is determined, and how well the fit holds on calibration and vali
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO, TYPE_CHECKING
 
 import numpy as np
 
-from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
+from ebus_env.calibration.isopt import History, ISOPTSettings, Progress, isopt
 from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.metrics import soc_fit
 from ebus_env.calibration.problem import Blocks, CalibrationProblem, logs_current, require_soc
 from ebus_env.profile import Profile
 from ebus_env.units import shown_unit
+
+if TYPE_CHECKING:
+    from ebus_env.calibration.windowed import WindowSettings
+    from ebus_env.model.model import Model
+
+PlotTarget = str | os.PathLike[str] | IO[bytes]
+"""Where a plot goes: a path, or a binary file object (PNG)."""
 
 NEAR_REL = 0.10
 """Parameter values whose fit is within this fraction of the best NRMSE (plus ``NEAR_ABS``)
@@ -164,7 +173,7 @@ class CalibrationResult:
             out["windows"] = self.windows
         return out
 
-    def plot(self, path) -> None:
+    def plot(self, path: PlotTarget) -> None:
         """Simulated vs measured SoC with the residual, calibration and validation (to a path
         or a binary file object, PNG)."""
         import matplotlib
@@ -191,7 +200,7 @@ class CalibrationResult:
         fig.savefig(path, dpi=110, format="png")
         plt.close(fig)
 
-    def plot_determinacy(self, path) -> None:
+    def plot_determinacy(self, path: PlotTarget) -> None:
         """Cost along each parameter through the optimum, with the range that fits within
         10 % of the best shaded: a flat curve is a parameter the data does not determine."""
         import matplotlib
@@ -277,7 +286,7 @@ def determinacy(problem: CalibrationProblem, u_best: np.ndarray, cost_best: floa
     return out
 
 
-def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
+def evaluate_fit(model: Model, profiles: Sequence[Profile], params: np.ndarray,
                  blocks: Blocks | None = None, charge: bool = False) -> tuple[dict, dict]:
     """Fit statistics of a parameter vector on profiles (each from its measured first SoC, or
     scored on ``blocks``), and the curves for plotting; with ``charge``, also the NRMSE of the
@@ -325,7 +334,8 @@ def evaluate_fit(model, profiles: Sequence[Profile], params: np.ndarray,
     return fit, {"t_h": np.concatenate(times), "sim": sim, "meas": mea}
 
 
-def with_charge(fit: dict, problem: CalibrationProblem, sims, params: np.ndarray) -> None:
+def with_charge(fit: dict, problem: CalibrationProblem, sims: list[np.ndarray],
+                params: np.ndarray) -> None:
     """Add to SoC ``fit`` statistics the NRMSE of the counted charge (``charge_nrmse``) and
     ``cost``, sqrt((NRMSE^2 + NRMSE_Q^2) / 2): the error a calibration that fits the charge
     minimises, and the one to compare two such fits by (:meth:`CalibrationProblem.fit_cost`)."""
@@ -333,7 +343,7 @@ def with_charge(fit: dict, problem: CalibrationProblem, sims, params: np.ndarray
     fit["cost"] = float(np.hypot(fit["nrmse"], fit["charge_nrmse"]) / np.sqrt(2.0))
 
 
-def _evaluate_blocks(model, profiles, params, blocks: Blocks,
+def _evaluate_blocks(model: Model, profiles: Sequence[Profile], params: np.ndarray, blocks: Blocks,
                      charge: bool = False) -> tuple[dict, dict]:
     """SoC fit statistics on the scored blocks (the SoC restarting at each block)."""
     problem = CalibrationProblem(model, profiles, [model.param_names[0]], chunks=1,
@@ -352,13 +362,13 @@ def _evaluate_blocks(model, profiles, params, blocks: Blocks,
                  "meas": np.concatenate(meas)}
 
 
-def calibrate(model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
+def calibrate(model: Model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
               bounds: Mapping[str, Sequence[float]] | None = None,
               fixed: Mapping[str, float] | None = None, settings: ISOPTSettings | None = None,
               validate: Sequence[Profile] | None = None, windowed: bool = False,
               categorical_load: bool = False, chunks: int = 8,
-              progress: Callable[[int, float, int], None] | None = None,
-              window_settings=None, polish_starts: int | None = None,
+              progress: Progress | None = None,
+              window_settings: WindowSettings | None = None, polish_starts: int | None = None,
               start: Sequence[Mapping[str, float]] = (), blocks: Blocks | None = None,
               validate_blocks: Blocks | None = None, charge: bool = False) -> CalibrationResult:
     """Fit the free parameters of ``model`` to the measured SoC of ``profiles``.

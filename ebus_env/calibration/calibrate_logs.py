@@ -4,12 +4,14 @@ the console), write the overlay, the results, the plots and the convergence hist
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ebus_env.bus_choice import BusChoice, input_files, split_names
 from ebus_env.calibration.calibrate import CalibrationResult, calibrate
+from ebus_env.calibration.isopt import Progress
 from ebus_env.calibration.problem import require_soc
 from ebus_env.calibration.settings import calibration_config_file, load_calibration_config
 from ebus_env.inputs import check
@@ -53,7 +55,8 @@ class LogCalibration:
     plots: list[Path] = field(default_factory=list)
 
 
-def calibrate_logs(logs, bus: str | Path | BusChoice = "12m", *, validate=(),
+def calibrate_logs(logs: Sequence[str | Path], bus: str | Path | BusChoice = "12m", *,
+                   validate: Sequence[str | Path] | None = (),
                    free: str | list[str] | None = None, fixed: dict[str, float] | None = None,
                    ranges: dict[str, tuple[float, float]] | None = None, windowed: bool = False,
                    charge: bool = False, seed: int = 0, population: int | None = None,
@@ -189,7 +192,8 @@ def calibrate_logs(logs, bus: str | Path | BusChoice = "12m", *, validate=(),
 
 
 @contextlib.contextmanager
-def _progress_bar(console: Console | None, title: str, total: int | None):
+def _progress_bar(console: Console | None, title: str, total: int | None
+                  ) -> Iterator[Progress | None]:
     """A progress callback ``(iteration, best cost, evaluations)`` drawing a bar on
     ``console`` (None: no bar, no callback)."""
     if console is None:
@@ -204,7 +208,7 @@ def _progress_bar(console: Console | None, title: str, total: int | None):
                   TimeElapsedColumn(), console=console, transient=False) as bar:
         task = bar.add_task(title, total=total, best=float("nan"), evals=0)
 
-        def progress(i, best, evals):
+        def progress(i: int, best: float, evals: int) -> None:
             bar.update(task, completed=i, best=best, evals=evals)
 
         yield progress

@@ -52,7 +52,7 @@ class ISOPTSettings:
     improvement_tol: float = 1e-9
     seed: int = 0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.population < 2 or self.iterations < 0:
             raise ValueError("iSOPT needs a population of at least 2 and iterations >= 0.")
         if self.c_exploit <= 0 or self.c_explore <= 0:
@@ -95,11 +95,13 @@ class ISOPTResult:
 
 
 CostFunction = Callable[[np.ndarray, float], np.ndarray]
+Progress = Callable[[int, float, int], None]
+"""A progress callback: (iteration or window, best cost so far, evaluations so far)."""
 
 
 def isopt(cost: CostFunction, dim: int, settings: ISOPTSettings | None = None,
           x0: np.ndarray | None = None,
-          callback: Callable[[int, float, int], None] | None = None,
+          callback: Progress | None = None,
           population: np.ndarray | None = None) -> ISOPTResult:
     """Minimise ``cost`` over the unit box [0, 1]^dim.
 

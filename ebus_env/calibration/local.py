@@ -38,7 +38,7 @@ def polish(problem: CalibrationProblem, starts: np.ndarray, iterations: int = 12
     jac = np.zeros((k, r.shape[1], d))
     factors = np.array([0.1, 1.0, 10.0])
 
-    def jacobians(u, r):
+    def jacobians(u: np.ndarray, r: np.ndarray) -> np.ndarray:
         signs = np.where(u + step <= 1.0, 1.0, -1.0)  # (k, d)
         shifted = (u[:, None, :] + np.eye(d)[None] * (signs * step)[:, :, None]).reshape(-1, d)
         rs = problem.residuals(shifted).reshape(k, d, -1)
@@ -60,7 +60,7 @@ def polish(problem: CalibrationProblem, starts: np.ndarray, iterations: int = 12
         best = np.argmin(ft, axis=1)
         improved = ft[np.arange(k), best] < f * (1 - 1e-6)
         moved = 0.0
-        for i in np.flatnonzero(improved):
+        for i in np.flatnonzero(improved).tolist():
             moved = max(moved, float(np.max(np.abs(trials[i, best[i]] - u[i]))))
             u[i], r[i], f[i] = trials[i, best[i]], rt[i, best[i]], ft[i, best[i]]
             damping[i] *= factors[best[i]] / 3.0

@@ -31,11 +31,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ebus_env.errors import ConfigError
 from ebus_env.profile import Profile, as_profiles
+
+if TYPE_CHECKING:
+    from ebus_env.model.model import Model
 
 PAPER_PARAMS = (
     "passenger_load.load_frac",
@@ -50,7 +54,7 @@ PAPER_PARAMS = (
 
 
 
-def paper_params(model) -> list[str]:
+def paper_params(model: Model) -> list[str]:
     """The paper's parameters this model has, under their names in it (a slot filled by a
     refinement keeps them: ``regen_soc_limit.cutoff_speed_mps``)."""
     return [m for m in map(model.equivalent, PAPER_PARAMS) if m is not None]
@@ -115,7 +119,7 @@ def logs_current(profile: Profile) -> bool:
     return current is not None and bool(np.isfinite(current).all())
 
 
-def coulombic_efficiency(model, matrix: np.ndarray) -> np.ndarray:
+def coulombic_efficiency(model: Model, matrix: np.ndarray) -> np.ndarray:
     """Coulombic efficiency of parameter rows (n, n_params): the share of the charge going in
     that the pack stores (1 where the model has none)."""
     names = [n for n in model.param_names if n.endswith(".coulombic_efficiency")]
@@ -123,7 +127,7 @@ def coulombic_efficiency(model, matrix: np.ndarray) -> np.ndarray:
     return matrix[:, model.param_index(names[0])] if names else np.ones(len(matrix))
 
 
-def capacity_ah(model, matrix: np.ndarray) -> np.ndarray:
+def capacity_ah(model: Model, matrix: np.ndarray) -> np.ndarray:
     """Pack capacity [Ah] of parameter rows, at the model's starting state (one step)."""
     matrix = np.atleast_2d(matrix)
     states = np.array([model.initial_state(row, {}) for row in matrix])
@@ -144,7 +148,7 @@ class Blocks:
     scored: tuple[np.ndarray, ...]  # per profile: bool per block
 
 
-def measured_soc_at(profile: Profile, rows) -> np.ndarray:
+def measured_soc_at(profile: Profile, rows: np.ndarray) -> np.ndarray:
     """Measured SoC at rows, interpolated between the log's samples."""
     samples = profile.sample_rows("soc_frac")
     return np.interp(rows, samples, profile.measured["soc_frac"][samples])
@@ -171,10 +175,13 @@ class _Data:
     def counted(self, eta: np.ndarray) -> np.ndarray:
         """(n, rows) SoC change counted from the current, charge going in at efficiencies
         ``eta`` (n,)."""
+        if self.discharged is None or self.charged is None:
+            raise ValueError(f"Profile '{self.profile.name}': no charge counted (a problem "
+                             "without charge=True, or a log without current).")
         return -(self.discharged[None, :] - eta[:, None] * self.charged[None, :])
 
     def charge_error(self, sim: np.ndarray, ratio: np.ndarray, eta: np.ndarray,
-                     rows=slice(None)) -> np.ndarray:
+                     rows: slice | np.ndarray = slice(None)) -> np.ndarray:
         """(n, rows) the SoC change simulated since each row's block started minus the one
         the current counts, both in the starting pack's SoC (Q_0): ``sim`` (n, rows) at the
         ``rows`` selected, ``ratio`` = Q / Q_0 and ``eta`` of each parameter row."""
@@ -230,7 +237,7 @@ class CalibrationProblem:
         ``battery_current_a``).
     """
 
-    def __init__(self, model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
+    def __init__(self, model: Model, profiles: Sequence[Profile], free: Sequence[str] | None = None,
                  bounds: Mapping[str, Sequence[float]] | None = None,
                  fixed: Mapping[str, float] | None = None, categorical_load: bool = False,
                  chunks: int = 8, initial: Sequence[Mapping[str, float]] | None = None,
@@ -347,7 +354,7 @@ class CalibrationProblem:
                                   "alone, or give a log with 'battery_current_a'.")
             current = profile.measured["battery_current_a"]
 
-            def since_start(part):  # [Q_0] moved since each row's block started
+            def since_start(part: np.ndarray) -> np.ndarray:  # [Q_0] since the block's start
                 ah = np.concatenate([[0.0], np.cumsum(part[:-1]) * profile.dt_s / 3600.0])
                 return (ah[rows] - ah[start_of]) / self.capacity_ah
 

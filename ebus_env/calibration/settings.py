@@ -5,11 +5,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from ebus_env.calibration.isopt import ISOPTSettings
 from ebus_env.calibration.windowed import WindowSettings
 from ebus_env.config import find_config, read_yaml
 from ebus_env.errors import ConfigError, unknown_name
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 @dataclass
@@ -23,7 +27,16 @@ class CalibrationConfig:
     windows: WindowSettings = field(default_factory=WindowSettings)
 
 
-def _dataclass_from(cls, data: dict, where: str):
+T = TypeVar("T", bound="DataclassInstance")
+
+
+def _pair(value: Any) -> tuple[float, float]:
+    """A YAML ``[low, high]`` as two floats (a ValueError for anything else)."""
+    low, high = (float(x) for x in value)
+    return low, high
+
+
+def _dataclass_from(cls: type[T], data: dict[str, Any], where: str) -> T:
     names = {f.name for f in fields(cls)}
     for key in data:
         if key not in names:
@@ -42,7 +55,7 @@ def load_calibration_config(name: str | Path | None = None) -> CalibrationConfig
         if key not in top:
             raise unknown_name(f"key in {path}", key, top)
     try:
-        ranges = {k: tuple(float(x) for x in v) for k, v in (data.get("ranges") or {}).items()}
+        ranges = {str(k): _pair(v) for k, v in (data.get("ranges") or {}).items()}
     except (TypeError, ValueError):
         raise ConfigError(f"{path}: ranges must map names to [low, high].") from None
     return CalibrationConfig(

@@ -31,10 +31,11 @@ estimate settles, so the total simulated time is well below offline tuning's.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from ebus_env.calibration.isopt import History, ISOPTSettings, isopt
+from ebus_env.calibration.isopt import History, ISOPTSettings, Progress, isopt
 from ebus_env.calibration.local import distinct_starts, polish
 from ebus_env.calibration.problem import CalibrationProblem
 from ebus_env.errors import ConfigError
@@ -84,7 +85,8 @@ def window_ends(profile: Profile, settings: WindowSettings) -> list[tuple[int, s
     # the first window lasts until it has seen every category the log has (a first search on
     # a window without charging could not tell the charging parameters)
     first_seen = max(int(np.flatnonzero(cat == c)[0]) for c in np.unique(cat))
-    ends, start = [], 0
+    ends: list[tuple[int, str]] = []
+    start = 0
     for minute in range(1, len(cat) + 1):
         length = minute - start
         boundary = minute == len(cat) or cat[minute] != cat[minute - 1]
@@ -99,7 +101,8 @@ def window_ends(profile: Profile, settings: WindowSettings) -> list[tuple[int, s
 
 
 def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
-                  window_settings: WindowSettings | None = None, progress=None):
+                  window_settings: WindowSettings | None = None, progress: Progress | None = None
+                  ) -> tuple[np.ndarray, float, History, int, bool, list[dict[str, Any]]]:
     """Windowed tuning of ``problem`` (see module docstring). Returns (best u, its cost on all
     data, history, evaluations, interrupted, per-window log)."""
     ws = window_settings or WindowSettings()
@@ -123,9 +126,8 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
                 sub = CalibrationProblem(problem.model, data_seen, problem.free, bounds, fixed,
                                          problem.categorical, problem.chunks,
                                          charge=problem.charge)
-                row = {"pass": sweep + 1, "end_h": (sum(p.duration_s for p in profiles[:i])
-                                                    + end * profiles[i].dt_s) / 3600.0,
-                       "category": category}
+                end_h = (sum(p.duration_s for p in profiles[:i]) + end * profiles[i].dt_s) / 3600.0
+                row: dict[str, Any] = {"pass": sweep + 1, "end_h": end_h, "category": category}
                 if u is not None:
                     # the previous estimate predicts the new data (what an online user sees)
                     start = log[-1]["end_h"] if log and log[-1]["pass"] == sweep + 1 else 0.0
