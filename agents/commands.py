@@ -10,7 +10,7 @@ names :func:`register` there) and calls it with the app, so installing ``agents`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -26,13 +26,13 @@ def register(app: typer.Typer) -> None:
     app.command()(train)
 
 
-def _env_overrides(items: list[str] | None) -> dict:
+def _env_overrides(items: list[str] | None) -> dict[str, Any]:
     """``key=value`` items of ``--set`` as env config overrides (values read as YAML)."""
     import yaml
 
     from ebus_env.errors import ConfigError
 
-    out = {}
+    out: dict[str, Any] = {}
     for item in items or []:
         if "=" not in item:
             raise ConfigError(f"--set needs key=value, got '{item}'.")
@@ -56,10 +56,10 @@ def evaluate(
     out: Annotated[Path, typer.Option(help="Folder for scores.json, CSV and plots")]
     = Path("runs/evaluate"),
     threads: ThreadsOpt = 1,
-):
+) -> None:
     """Score policies on the same held-out days: energy, grid load, comfort, delay."""
 
-    def body():
+    def body() -> None:
         from agents.evaluate import evaluate_policies, print_sheet
 
         done = evaluate_policies(policy, env, episodes, out, threads, **_env_overrides(set_))
@@ -84,10 +84,10 @@ def train(
         "--threads", help="Torch threads (overrides the config; 1 suits small MLPs)")] = None,
     out: Annotated[Path, typer.Option(help="Folder for the agent, checkpoints, TensorBoard")]
     = Path("runs/ppo"),
-):
+) -> None:
     """Train PPO on EBus-v0's native vector env (stable-baselines3)."""
 
-    def body():
+    def body() -> None:
         from agents.ppo import train_agent
 
         done = train_agent(config, out, steps=steps, seed=seed, time_limit_min=time_limit_min,

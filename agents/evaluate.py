@@ -19,13 +19,19 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
 from scipy import stats
 
-from agents.rules import RULES
+from agents.policy import Policy
+from agents.rules import RULES, RulePolicy
+from ebus_env.envs.env_config import EnvSource
 from ebus_env.envs.vector import EBusVectorEnv
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 HELD_OUT_SEED = 10_000
 METRICS = (  # key, unit, what
@@ -81,12 +87,13 @@ def paired_difference(a: PolicyScores, b: PolicyScores, key: str) -> tuple[float
     return (float(finite.mean()) if len(finite) else float("nan")), ci95_half_width(d)
 
 
-def run_days(policy, config, seeds: list[int], **overrides) -> PolicyScores:
+def run_days(policy: Policy, config: EnvSource, seeds: list[int], **overrides: Any
+             ) -> PolicyScores:
     """Drive the days ``seeds`` with ``policy`` (``predict(obs)``), all at once."""
     venv = EBusVectorEnv(num_envs=len(seeds), config=config,
                          autoreset_mode=AutoresetMode.SAME_STEP, **overrides)
     n = len(seeds)
-    if hasattr(policy, "for_env"):  # a rule: for this env's bus
+    if isinstance(policy, RulePolicy):  # a rule: for this env's bus
         policy = policy.for_env(venv)
     obs, _ = venv.reset(seed=list(seeds))
     total = {k: np.zeros(n) for k in ("distance_km", "traction", "hvac", "consumed",
@@ -179,9 +186,10 @@ class ScoreSheet:
         rules = [p for p in self.policies if p.name in RULES]
         return max(rules, key=lambda p: p.mean("reward")) if rules else None
 
-    def versus_best_rule(self) -> dict[str, dict[str, tuple[float, float]]]:
-        """Each other (learned) policy minus the best rule on the same days: (mean, 95 % CI
-        half-width) of the paired difference, per metric (reward: > 0 is better)."""
+    def versus_best_rule(self) -> dict[str, dict[str, str | tuple[float, float]]]:
+        """Each other (learned) policy minus the best rule (its name under ``versus``) on the
+        same days: (mean, 95 % CI half-width) of the paired difference, per metric (reward:
+        > 0 is better)."""
         best = self.best_rule()
         if best is None:
             return {}
@@ -189,8 +197,8 @@ class ScoreSheet:
                 for p in self.policies if p.name not in RULES}
 
     def to_dict(self) -> dict:
-        versus = {name: {"versus": d.pop("versus"), **{k: {"mean": m, "ci95": c}
-                                                      for k, (m, c) in d.items()}}
+        versus = {name: {"versus": d["versus"], **{k: {"mean": d[k][0], "ci95": d[k][1]}
+                                                   for k in KEYS}}
                   for name, d in self.versus_best_rule().items()}
         return {"env": self.env, "seeds": self.seeds,
                 "metrics": {k: {"unit": u, "meaning": w} for k, u, w in METRICS},
@@ -221,7 +229,7 @@ class ScoreSheet:
         return written
 
 
-def finite_or_null(value):
+def finite_or_null(value: object) -> object:
     """``value`` (nested dicts, lists, tuples of numbers) with every number that is not
     finite (NaN, +-inf) as None, and numpy scalars as Python ones: JSON without NaN."""
     if isinstance(value, dict):
@@ -235,7 +243,7 @@ def finite_or_null(value):
     return value
 
 
-def print_sheet(sheet: ScoreSheet, console) -> None:
+def print_sheet(sheet: ScoreSheet, console: Console) -> None:
     """The score sheet as tables: each metric's mean +- 95 % CI per policy (columns), then
     the savings by ECO feature."""
     from rich.table import Table
@@ -297,8 +305,8 @@ def plot_days(sheet: ScoreSheet, path: Path) -> None:
     plt.close(fig)
 
 
-def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SEED,
-             **overrides) -> ScoreSheet:
+def evaluate(policies: list[Policy], config: EnvSource, episodes: int = 20,
+             seed: int = HELD_OUT_SEED, **overrides: Any) -> ScoreSheet:
     """Every policy on the same ``episodes`` held-out days."""
     seeds = [seed + i for i in range(episodes)]
     scores = [run_days(p, config, seeds, **overrides) for p in policies]
@@ -310,7 +318,7 @@ def evaluate(policies: list, config, episodes: int = 20, seed: int = HELD_OUT_SE
     return ScoreSheet(str(config), seeds, scores, EnvConfig.load(config, **overrides).service_h)
 
 
-def env_files(env, overrides: dict) -> list:
+def env_files(env: EnvSource, overrides: dict[str, Any]) -> list[Path | None]:
     """Files an env config reads that an output could overwrite: its YAML and a measured log
     (None where there is none)."""
     return [Path(str(env)) if Path(str(env)).suffix else None,
@@ -327,7 +335,7 @@ class Evaluation:
 
 def evaluate_policies(policies: list[str], env: str | Path = "sort2_day", episodes: int = 20,
                       out: str | Path = "runs/evaluate", threads: int = 1,
-                      **overrides) -> Evaluation:
+                      **overrides: Any) -> Evaluation:
     """Score policies on the same held-out days and write the sheet (``ebus evaluate``).
 
     Parameters

@@ -19,12 +19,24 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from agents.policy import Policy, PolicyState
 from ebus_env import paths
 from ebus_env.envs.common import config_keys
 from ebus_env.errors import ConfigError
+
+if TYPE_CHECKING:  # torch and stable-baselines3 load when an agent trains or runs
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.base_class import BaseAlgorithm
+    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+    from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
+
+    from ebus_env.envs.common import EnvConfig
 
 DEFAULT_AGENT = paths.trained("ppo_sort2_day")
 """The shipped agent (``ppo:default``): PPO trained on ``sort2_day`` (see its README)."""
@@ -35,11 +47,11 @@ OUTPUTS = ("config.json", "training.json", "model.zip", "vecnormalize.pkl", "pro
 SEED_MAX = 2**32 - 1  # numpy's legacy seeding, which stable-baselines3 uses, takes no more
 
 
-def _is_int(value) -> bool:
+def _is_int(value: object) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def _is_real(value) -> bool:
+def _is_real(value: object) -> bool:
     return (isinstance(value, numbers.Real) and not isinstance(value, bool)
             and math.isfinite(value))
 
@@ -65,13 +77,13 @@ class PPOConfig:
     time_limit_min: float | None = None  # stop (and save) after this much wall-clock time
     torch_threads: int = 1  # a small MLP on a shared CPU: more threads mostly wait on each other
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         """Every field's type and range, and what stable-baselines3's PPO requires of the
         rollout and its mini-batches: a clear :class:`ConfigError` before any work."""
-        def fail(name: str, needs: str):
+        def fail(name: str, needs: str) -> NoReturn:
             raise ConfigError(f"PPO config {name}={getattr(self, name)!r}: needs {needs}.")
 
-        def put(name: str, value):
+        def put(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
 
         if isinstance(self.env, Path):
@@ -143,7 +155,7 @@ class PPOConfig:
         return (f"{self.total_steps} steps round up to {self.planned_steps}: whole rollouts of "
                 f"num_envs x n_steps = {self.num_envs} x {self.n_steps} = {self.rollout} steps.")
 
-    def env_config(self):
+    def env_config(self) -> EnvConfig:
         """The env config this trains on (``env`` with ``env_overrides``): a clear error when
         either is wrong."""
         from ebus_env.envs.common import EnvConfig
@@ -151,12 +163,12 @@ class PPOConfig:
         return EnvConfig.load(self.env, **self.env_overrides)
 
     @classmethod
-    def load(cls, source: str | Path | None = "ppo", **overrides) -> PPOConfig:
+    def load(cls, source: str | Path | None = "ppo", **overrides: Any) -> PPOConfig:
         """From a name in ``configs/agents`` or a YAML path, with overrides."""
         return cls(**config_keys(cls, source or "ppo", overrides, "PPO", paths.configs("agents")))
 
 
-def _venv(cfg: PPOConfig, num_envs: int):
+def _venv(cfg: PPOConfig, num_envs: int) -> VecMonitor:
     from stable_baselines3.common.vec_env import VecMonitor
 
     from ebus_env.envs.sb3 import SB3VecEnv
@@ -164,7 +176,7 @@ def _venv(cfg: PPOConfig, num_envs: int):
     return VecMonitor(SB3VecEnv(num_envs=num_envs, config=cfg.env, **cfg.env_overrides))
 
 
-def require_rl():
+def require_rl() -> tuple[ModuleType, ModuleType]:
     """Import torch and stable-baselines3, or say which extra installs them."""
     try:
         import stable_baselines3
@@ -175,24 +187,28 @@ def require_rl():
     return torch, stable_baselines3
 
 
-def _time_limit(minutes: float, clock: Callable[[], float]):
-    """A callback that ends training once ``clock`` [s] has advanced ``minutes``."""
+def _time_limit(minutes: float, clock: Callable[[], float]
+                ) -> tuple[BaseCallback, Callable[[], bool]]:
+    """A callback that ends training once ``clock`` [s] has advanced ``minutes``, and a
+    function that says whether it did."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class TimeLimit(BaseCallback):
         reached = False
 
-        def _on_training_start(self):
+        def _on_training_start(self) -> None:
             self.deadline = clock() + 60.0 * minutes
 
         def _on_step(self) -> bool:
             TimeLimit.reached = clock() >= self.deadline
             return not TimeLimit.reached
 
-    return TimeLimit()
+    limit = TimeLimit()
+    return limit, lambda: limit.reached
 
 
-def _save_agent(model, norm, model_path: Path, norm_path: Path) -> None:
+def _save_agent(model: BaseAlgorithm, norm: VecNormalize | None, model_path: Path,
+                norm_path: Path) -> None:
     """``model`` (and the VecNormalize ``norm``, unless None) each through a temporary file
     renamed over its target: a crash leaves the previous file whole. The temporary path keeps
     the suffix, so stable-baselines3 does not append ``.zip``."""
@@ -205,7 +221,7 @@ def _save_agent(model, norm, model_path: Path, norm_path: Path) -> None:
             norm.save(str(tmp))
 
 
-def _checkpoints(every: int, folder: Path, normalize: bool):
+def _checkpoints(every: int, folder: Path, normalize: bool) -> CheckpointCallback:
     """stable-baselines3's CheckpointCallback (same names: ``ppo_<steps>_steps.zip``,
     ``ppo_vecnormalize_<steps>_steps.pkl``), each file written through a temporary file."""
     from stable_baselines3.common.callbacks import CheckpointCallback
@@ -221,7 +237,7 @@ def _checkpoints(every: int, folder: Path, normalize: bool):
     return AtomicCheckpoints(every, str(folder), name_prefix="ppo", save_vecnormalize=normalize)
 
 
-def build(cfg: PPOConfig):
+def build(cfg: PPOConfig) -> PPO:
     """The untrained PPO model of ``cfg`` on its seeded vector env (VecNormalize around it when
     ``cfg.normalize``); ``model.get_env()`` is that env, to close."""
     require_rl()
@@ -236,7 +252,7 @@ def build(cfg: PPOConfig):
             f"n_steps = {cfg.rollout} steps: each epoch ends with a mini-batch of "
             f"{cfg.rollout % cfg.batch_size}. Fix: a batch_size that divides {cfg.rollout}.",
             ("ppo batch", cfg.batch_size, cfg.rollout)), stacklevel=2)
-    venv = _venv(cfg, cfg.num_envs)
+    venv: VecEnv = _venv(cfg, cfg.num_envs)
     try:
         venv.seed(cfg.seed)
         if cfg.normalize:
@@ -288,6 +304,7 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
     torch.set_num_threads(cfg.torch_threads)
     model = build(cfg)
     venv = model.get_env()
+    assert venv is not None  # build() gives the model its env
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_text(out / "config.json", json.dumps(asdict(cfg), indent=2))
@@ -299,7 +316,7 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
                                   out / "checkpoints", cfg.normalize)]
         limit = _time_limit(cfg.time_limit_min, clock) if cfg.time_limit_min else None
         t0 = clock()
-        model.learn(cfg.total_steps, callback=callbacks + ([limit] if limit else []),
+        model.learn(cfg.total_steps, callback=callbacks + ([limit[0]] if limit else []),
                     progress_bar=progress)
         wall_s = clock() - t0
         model.logger.close()
@@ -311,7 +328,7 @@ def train(cfg: PPOConfig, out_dir: str | Path, progress: bool = False,
         "steps": int(model.num_timesteps), "steps_asked": cfg.total_steps,
         "rollout": cfg.rollout, "wall_s": round(wall_s, 1),
         "steps_per_s": round(model.num_timesteps / max(wall_s, 1e-9)),
-        "stopped_by_time_limit": bool(limit and limit.reached),
+        "stopped_by_time_limit": bool(limit and limit[1]()),
         "torch_threads": cfg.torch_threads, "cpus": os.cpu_count(),
         "machine": platform.processor() or platform.machine()}, indent=2))
     return out
@@ -386,14 +403,16 @@ class PPOPolicy:
             with open(stats, "rb") as f:
                 self._norm = pickle.load(f)  # VecNormalize without its env: stats only
 
-    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
-        obs = np.asarray(obs, dtype=np.float32)
+    def predict(self, obs: ArrayLike, state: PolicyState = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, PolicyState]:
+        x = np.asarray(obs, dtype=np.float32)
         if self._norm is not None:
-            obs = self._norm.normalize_obs(obs)
-        return self.model.predict(obs, deterministic=deterministic)
+            x = self._norm.normalize_obs(x)
+        return self.model.predict(x, deterministic=deterministic)
 
 
-def load_policy(spec: str, torch_threads: int = 1):
+def load_policy(spec: str, torch_threads: int = 1) -> Policy:
     """``rule:NAME`` (``agents.rules.RULES``), ``ppo:PATH`` (a training folder or a
     checkpoint's zip) or ``ppo:default`` (the shipped agent)."""
     from agents.rules import rule

@@ -26,10 +26,15 @@ The coefficients are parametrisations (docs/physics.md §10), exposed as fields.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from gymnasium.vector import VectorEnv
+from numpy.typing import ArrayLike
 
-from ebus_env.envs.batch import OBSERVATIONS
+from agents.policy import PolicyState
+from ebus_env.envs.batch import OBSERVATIONS, BusBatch
 from ebus_env.envs.common import ACTION_LOW, ACTION_SPAN, ACTIONS
 from ebus_env.errors import ConfigError
 
@@ -86,13 +91,22 @@ class RulePolicy:
             out[:, 4] = 1.0 - (1.0 - self.pulse_duty) * np.clip(x, 0.0, 1.0)
         return out
 
-    def for_env(self, env) -> RulePolicy:
+    def for_env(self, env: gym.Env | VectorEnv | BusBatch) -> RulePolicy:
         """This rule for the bus of ``env`` (``EBus-v0``, its vector env or their ``buses``):
         its passenger capacity."""
-        buses = getattr(getattr(env, "unwrapped", env), "buses", env)
+        from ebus_env.envs.ebus import EBusEnv
+        from ebus_env.envs.vector import EBusVectorEnv
+
+        bus_env = env if isinstance(env, BusBatch) else env.unwrapped
+        if not isinstance(bus_env, BusBatch | EBusEnv | EBusVectorEnv):
+            raise ConfigError(f"A rule is for EBus-v0, its vector env or their buses, not "
+                              f"{type(bus_env).__name__}.")
+        buses = bus_env if isinstance(bus_env, BusBatch) else bus_env.buses
         return replace(self, capacity=buses.capacity)
 
-    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+    def predict(self, obs: ArrayLike, state: PolicyState = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, PolicyState]:
         """Actions for one observation (16,) or a batch (n, 16), as stable-baselines3's."""
         obs = np.asarray(obs, dtype=np.float64)
         actions = normalised(self.values(np.atleast_2d(obs)))
@@ -108,7 +122,7 @@ RULES = {
 }
 
 
-def rule(name: str, capacity: float = 85.0, **fields) -> RulePolicy:
+def rule(name: str, capacity: float = 85.0, **fields: Any) -> RulePolicy:
     """A rule by name (``RULES``), for a bus of ``capacity`` passengers."""
     if name not in RULES:
         raise ConfigError(f"No rule '{name}'; rules: {', '.join(RULES)}.")
@@ -145,16 +159,23 @@ class FleetChargingRule:
     per_bus: RulePolicy = RulePolicy()
 
     @classmethod
-    def for_env(cls, env, name: str = "greedy", **fields) -> FleetChargingRule:
+    def for_env(cls, env: gym.Env, name: str = "greedy", **fields: Any) -> FleetChargingRule:
         """This rule for a fleet env: its buses, charger rating, site limit and efficiency."""
-        u = getattr(env, "unwrapped", env)
+        from ebus_env.envs.fleet import EBusFleetEnv
+
+        u = env.unwrapped
+        if not isinstance(u, EBusFleetEnv):
+            raise ConfigError(f"A fleet charging rule is for EBusFleet-v0, not "
+                              f"{type(u).__name__}.")
         line = u.lines[0]
         return cls(name=name, n_buses=u.n, charger_kw=line.charger_w / 1e3,
                    site_limit_kw=u.config.site_limit_kw, chargers=u.config.chargers,
                    efficiency=float(u.efficiency[0]),
                    per_bus=replace(RulePolicy(), capacity=line.capacity), **fields)
 
-    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+    def predict(self, obs: ArrayLike, state: PolicyState = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, PolicyState]:
         obs = np.asarray(obs, dtype=np.float64)
         buses = obs[:self.n_buses * len(OBS)].reshape(self.n_buses, len(OBS))
         values = self.per_bus.values(buses)

@@ -15,6 +15,9 @@ from ebus_env.errors import ConfigError
 from ebus_env.inputs import ENV_KEYS, check
 
 CONFIG_DIR = paths.configs("env")
+EnvSource = str | Path | dict | None
+"""An env config: a name in ``configs/env``, a YAML path, a mapping of its keys or None
+(the defaults)."""
 
 
 @dataclass(frozen=True)
@@ -98,7 +101,7 @@ class EnvConfig:
         return mean, amplitude
 
     @classmethod
-    def load(cls, source: str | Path | dict | None = None, **overrides: Any) -> EnvConfig:
+    def load(cls, source: EnvSource = None, **overrides: Any) -> EnvConfig:
         """From a name in ``configs/env``, a YAML path or a mapping, with overrides."""
         return cls(**config_keys(cls, source, overrides, "env"))
 
