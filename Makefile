@@ -4,6 +4,7 @@
 #                study -> report/gtfs_study/report.html
 #   make test    install into .venv and run the fast tests (the ones not marked slow)
 #   make test-all   ... and every test, the slow ones too (what CI runs)
+#   make typecheck  mypy on effects, model, envs, calibration and agents (as CI)
 # Every install goes through constraints.txt, which pins torch to the local CPU build 2.13.0.
 
 PYTHON ?= python3
@@ -13,7 +14,7 @@ PIP    := $(VENV)/bin/pip install -c constraints.txt
 export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-all bench lint clean
+.PHONY: demo test test-all bench lint typecheck clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +37,9 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ebus_env agents tests benchmarks examples
+
+typecheck: $(STAMP)   # mypy on the packages of pyproject's [tool.mypy] files
+	$(VENV)/bin/mypy
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -394,3 +394,23 @@ def test_a_bus_without_a_charger_effect_is_refused_by_name(tmp_path):
     bus.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match="no effects offer the pulse duty cycle.*grid_charger"):
         gym.make("EBus-v0", config="sort2_day", bus=str(bus), service_h=0.5)
+
+
+def test_the_structs_of_the_compiled_passes_declare_the_same_fields_twice():
+    """The typed structs the compiled passes take (``BatchArrays``, ``Track``, ``Driving``)
+    declare each field for readers and type checkers (the proxy class) and for numba (its
+    struct type): the same names in the same order, of matching kinds."""
+    from numba.core import types
+
+    from ebus_env.envs import batch
+
+    kinds = {"float": types.Float, "int": types.Integer, "bool": types.Boolean,
+             "np.ndarray": types.Array, "reference.Track": reference.TrackType,
+             "reference.Driving": reference.DrivingType}
+    for proxy, struct in ((batch.BatchArrays, batch.BATCH_ARRAYS),
+                          (reference.Track, reference.TRACK),
+                          (reference.Driving, reference.DRIVING)):
+        declared = proxy.__annotations__
+        assert list(declared) == list(struct.field_dict), proxy.__name__
+        for name, numba_type in struct.field_dict.items():
+            assert isinstance(numba_type, kinds[declared[name]]), (proxy.__name__, name)

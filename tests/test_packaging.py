@@ -40,3 +40,12 @@ def test_the_shipped_data_are_covered_by_the_package_data_globs():
         assert files - shipped == set(), f"files of {folder}/ a wheel would leave out"
     assert (paths.data("cycles", "carculator", "sort2.csv")).is_file()
     assert (paths.trained("ppo_sort2_day") / "model.zip").is_file()
+
+
+def test_both_packages_say_they_are_typed_in_the_wheel():
+    """PEP 561: a ``py.typed`` marker in ``ebus_env`` and ``agents``, shipped by package-data,
+    so that a type checker reads the installed packages' annotations."""
+    globs = PYPROJECT["tool"]["setuptools"]["package-data"]
+    for package in ("ebus_env", "agents"):
+        assert (ROOT / package / "py.typed").is_file()
+        assert "py.typed" in globs[package]
