@@ -1,0 +1,177 @@
+"""The diagnosis's result: the :class:`Diagnosis` the report shows (``to_json``, ``text``,
+``write_html``), and its one-sentence verdict.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ebus_env.diagnostics import residual
+from ebus_env.diagnostics.ladder import Rung
+from ebus_env.units import with_unit
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report shows (``to_json`` for the machine-readable part)."""
+
+    bus: str
+    logs: list[str]
+    basis: str
+    window_s: float
+    verdict: str | None
+    sentence: str
+    why: str
+    to_decide: str  # what to log where the log leaves the question open, or ""
+    significance: float  # of the missing power above noise, in standard deviations
+    status: str  # "named", "too few windows", "noise", "outside library", "tie", "parameter",
+    # "implausible", "voltage" (named from the resistance the logged voltage shows),
+    # "re-calibrated" (named at the strength the bus re-calibrated with the effect ends at)
+    mode_clue: str | None  # the operating mode where the power is missing
+    ranking: list[dict]
+    parameters: list[dict]
+    selected: list[str]
+    set_aside: list[dict]
+    modes: list[dict]
+    bins: dict[str, list[dict]]
+    worst_windows: list[dict]
+    clues: list[dict]
+    data_issues: list[dict]
+    excluded_windows: int
+    nrmse: dict
+    calibration: dict | None
+    ladder: list[Rung]
+    timings: dict
+    reference: dict | None  # the normal day the missing power is relative to
+    resistance: dict | None  # the pack's resistance the logged voltage shows (voltage.py)
+    # arrays behind the plots
+    windows: residual.Windows = field(repr=False)
+    missing_w: np.ndarray = field(repr=False)
+    noise_w: np.ndarray = field(repr=False)
+    usable: np.ndarray = field(repr=False)
+    verdict_w: np.ndarray | None = field(repr=False)  # missing power the verdict's fit predicts
+    runs: list = field(repr=False)  # free-running model, each profile
+    after_runs: list = field(repr=False)  # the model "after" (nrmse["after_is"])
+    anchored: list = field(repr=False)  # the window-anchored runs
+    after_label: str = ""
+
+    @property
+    def range_ends(self) -> dict[str, str]:
+        """The calibrated parameters the data press against an end of the range searched
+        (see :meth:`~ebus_env.calibration.calibrate.CalibrationResult.pressing`)."""
+        return (self.calibration or {}).get("at_range_end", {})
+
+    @property
+    def named(self) -> dict | None:
+        """The verdict's row of the ranking (its estimate, interval and energy), or None."""
+        return next((r for r in self.ranking if r["effect"] == self.verdict), None)
+
+    @property
+    def pack_note(self) -> str:
+        """What the logged voltage says about the pack's resistance, or "" (no voltage)."""
+        return self.resistance["finding"] if self.resistance else ""
+
+    @property
+    def unmet_demand_s(self) -> float:
+        """Seconds in which the calibrated model's pack could not give the power the logged
+        speed needs (its cell voltage floor, an empty pack): the model fell behind the log."""
+        return float(sum(run.summary()["battery_limited_s"] for run in self.runs))
+
+    @property
+    def unmet_note(self) -> str:
+        """The log's speed the model could not follow for want of battery power, or ""."""
+        unmet = self.unmet_demand_s
+        return (f"For {unmet:.0f} s the model's pack could not give the power the logged speed "
+                "needs (its cell voltage floor or an empty pack): the missing power there is "
+                "the model falling behind, not a missing effect." if unmet > 0.5 else "")
+
+    @property
+    def decide_note(self) -> str:
+        """What would decide the question the log leaves open (:mod:`.deciding`), or ""."""
+        return f"What would decide it: {self.to_decide}" if self.to_decide else ""
+
+    @property
+    def caution(self) -> str:
+        """What the calibrated parameters at an end of their range mean, or ""."""
+        ends = self.range_ends
+        if not ends:
+            return ""
+        return (f"The calibration pressed {len(ends)} parameter(s) against an end of the range "
+                f"searched ({', '.join(f'{n} at its {side} end' for n, side in ends.items())}): "
+                "the bus lies outside those ranges (widen them with a calibration config's "
+                "ranges), or they take up power the model lacks; read the missing power with "
+                "that in mind.")
+
+    def to_json(self) -> dict:
+        keys = ("bus", "logs", "basis", "window_s", "verdict", "sentence", "why", "to_decide",
+                "significance", "status", "mode_clue", "ranking", "parameters", "selected",
+                "set_aside", "modes", "bins", "worst_windows", "clues", "data_issues",
+                "excluded_windows", "nrmse", "calibration", "reference", "resistance",
+                "timings")
+        out = {k: getattr(self, k) for k in keys}
+        out["ladder"] = [r.to_json() for r in self.ladder]
+        out["unmet_demand_s"] = self.unmet_demand_s
+        return _plain(out)
+
+    def write_json(self, path) -> None:
+        import json
+        from pathlib import Path
+
+        Path(path).write_text(json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
+
+    def write_html(self, path) -> None:
+        from ebus_env.diagnostics.report import write_html
+
+        write_html(self, path)
+
+    def text(self) -> str:
+        from ebus_env.diagnostics.report import text_report
+
+        return text_report(self)
+
+
+def _plain(value):
+    """JSON-safe copy: numpy scalars to Python, NaN/inf to None."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def _sentence(found, by_name, model) -> str:
+    verdict = found.verdict
+    if found.status in ("outside library", "too few windows"):
+        return f"{found.why[:1].upper()}{found.why[1:]}."  # "no library effect explains ..."
+    if verdict is None:
+        return f"No missing effect is supported by the data: {found.why}."
+    top = next(a for a in found.ranking if a["effect"] == verdict)
+    eff = by_name[verdict].effect
+    title = eff.title[:1].upper() + eff.title[1:]
+    text = (f"{title} ({verdict}): {found.why}" if found.status in ("voltage", "re-calibrated")
+            else
+            f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
+            "of the missing battery power on held-out windows")
+
+    def shown(value):
+        return f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
+
+    strength = found.strength
+    for name, value in strength.value.items():
+        info = model.param_info(name)
+        low, high = strength.interval[name]
+        text += (f"; {name.split('.', 1)[1]} about {with_unit(shown(value), info.unit)} "
+                 f"(90 % interval {shown(low)} to {shown(high)})")
+    if strength.value:
+        low, high = strength.energy_interval_kwh
+        text += (f"; it adds about {strength.energy_kwh:.3g} kWh to the log's energy use "
+                 f"(90 % interval {low:.3g} to {high:.3g})")
+    return text + "."
