@@ -76,7 +76,6 @@ def capture(job) -> Path:
     missing power and its uncertainty per window, every candidate's signatures, the
     calibrated (nuisance) parameters, which effects fit only beyond their strength's bounds,
     and on a day with a hidden effect the candidate of its oracle log."""
-    import importlib
 
     from ebus_env.config import load_bus
     from ebus_env.diagnostics.candidates import (
@@ -85,8 +84,9 @@ def capture(job) -> Path:
         window_signatures,
     )
     from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks, windows_in
+    from ebus_env.diagnostics.stage04_residual import residual_stage
+    from ebus_env.diagnostics.stage05_candidates import candidate_stage
 
-    stages = importlib.import_module("ebus_env.diagnostics.diagnose")  # the module, not the function
     source, case, days, cache = job
     out = Path(cache) / f"{source}-{case.case_id}-{case.hours:g}h.pkl"
     if out.exists():
@@ -97,8 +97,8 @@ def capture(job) -> Path:
     blocks = split_blocks(profiles)
     model = bus.build(dt_s)
     rung = calibrate_rung(bus, [], profiles, *blocks, dt_s, model=model)
-    res = stages.residual_stage(model, profiles, rung.values, None)
-    candidates, _ = stages.candidate_stage(bus, res, profiles, (), lambda text: None)
+    res = residual_stage(model, profiles, rung.values, None)
+    candidates, _ = candidate_stage(bus, res, profiles, (), lambda text: None)
     oracle = []
     if case.hidden is not None:
         oracle_profiles = truth_day(source, case, Path(days), oracle=True)[0]

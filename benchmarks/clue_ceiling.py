@@ -50,8 +50,10 @@ def ceiling_day(job) -> dict:
     """The three readings of one outside-library day (worker of the pool)."""
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import attribution, residual
-    from ebus_env.diagnostics.diagnose import _breakdowns, candidate_stage, mode_clue, residual_stage
     from ebus_env.diagnostics.ladder import calibrate_rung, split_blocks
+    from ebus_env.diagnostics.stage04_residual import residual_stage
+    from ebus_env.diagnostics.stage05_candidates import candidate_stage
+    from ebus_env.diagnostics.stage06_attribution import breakdowns, mode_clue
 
     source, case, folder, current_voltage = job
     profiles, truth = bench.truth_day(source, case, Path(folder), current_voltage, oracle=True)
@@ -73,7 +75,7 @@ def ceiling_day(job) -> dict:
         [by_name[n].signature_w[usable] for n in free]), weight[usable])
 
     def by_mode(power_w):  # the diagnosis's own mode table of a power per window
-        return _breakdowns(res.anchored, w, power_w, res.noise_w, usable)[0]
+        return breakdowns(res.anchored, w, power_w, res.noise_w, usable)[0]
 
     own, day = by_mode(load_w), by_mode(res.missing_w)
     # the left-over against the standard errors of the day's own missing power

@@ -287,10 +287,10 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     t0, cpu0 = time.perf_counter(), time.process_time()
     if reference:  # a normal day of the same bus
         from benchmarks.truth.cases import reference_case
-        from ebus_env.diagnostics.diagnose import reference_stage
+        from ebus_env.diagnostics.stage02_reference import reference_stage
 
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
-        reference = reference_stage(bus, normal_day, None, None, None, None)
+        reference = reference_stage(bus, normal_day)
     d = diagnose(bus, profiles, calibrate=True, reference=reference or None, freedom=freedom)
     if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")

@@ -469,7 +469,7 @@ def test_the_logs_resolution_is_the_standard_error_of_the_energy_its_windows_mea
     A verdict whose effect adds less than this is withdrawn as implausible."""
     from types import SimpleNamespace
 
-    from ebus_env.diagnostics.diagnose import Residual
+    from ebus_env.diagnostics.stage04_residual import Residual
 
     usable = np.ones(100, bool)
     usable[::10] = False
@@ -573,7 +573,7 @@ def _attribution_ends(monkeypatch, change) -> None:
     """Make the attribution stage end as ``change(res, candidates, found)`` says."""
     import importlib
 
-    stages = importlib.import_module("ebus_env.diagnostics.diagnose")
+    stages = importlib.import_module("ebus_env.diagnostics.stage06_attribution")
     attribute = getattr(stages.attribution_stage, "__wrapped__", stages.attribution_stage)
 
     def changed(res, candidates, *args):
@@ -717,7 +717,7 @@ def test_a_held_out_fall_counts_only_where_the_blocks_agree():
     """The fall of the held-out error that holds in 95 % of resamples of the blocks: a fall
     by half on every block is a fall by half; a fall on one block of five is none, though
     the day's error falls by 11 %."""
-    from ebus_env.diagnostics.diagnose import held_out_fall
+    from ebus_env.diagnostics.stage10_outside import held_out_fall
 
     before = np.ones(5)
     assert held_out_fall(before, 0.25 * before) == pytest.approx(0.5)
@@ -1051,8 +1051,8 @@ def test_on_a_bms_log_the_missing_power_is_the_charge_the_current_counts(bus12, 
     from dataclasses import replace
 
     from ebus_env.cycles import service_day
-    from ebus_env.diagnostics.diagnose import residual_stage
     from ebus_env.diagnostics.residual import CURRENT_BASIS
+    from ebus_env.diagnostics.stage04_residual import residual_stage
     from ebus_env.synthetic import synthetic_log
 
     model = bus12.build()

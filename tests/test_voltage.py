@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ebus_env.cycles import service_day
-from ebus_env.diagnostics.diagnose import residual_stage
+from ebus_env.diagnostics.stage04_residual import residual_stage
 from ebus_env.diagnostics.voltage import apparent_resistance, resistance_check
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log

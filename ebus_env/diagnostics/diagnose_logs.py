@@ -11,8 +11,9 @@ from typing import TYPE_CHECKING
 
 from ebus_env.bus_choice import BusChoice, input_files, split_names
 from ebus_env.calibration.settings import calibration_config_file, load_calibration_config
-from ebus_env.diagnostics.diagnose import Diagnosis, diagnose
+from ebus_env.diagnostics.diagnosis_result import Diagnosis
 from ebus_env.diagnostics.ladder import Freedom, as_effect, check_known
+from ebus_env.diagnostics.pipeline import diagnose
 from ebus_env.diagnostics.residual import PACK_SIGNALS
 from ebus_env.errors import LogError
 from ebus_env.inputs import check
@@ -80,7 +81,7 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
     Returns
     -------
     LogDiagnosis
-        The :class:`~ebus_env.diagnostics.diagnose.Diagnosis` and the files written.
+        The :class:`~ebus_env.diagnostics.diagnosis_result.Diagnosis` and the files written.
     """
     choice, reading = BusChoice.of(bus), reading or LogReading()
     logs, reference = [Path(p) for p in logs], [Path(p) for p in reference or ()]

@@ -1,16 +1,21 @@
 """The diagnosis's result: the :class:`Diagnosis` the report shows (``to_json``, ``text``,
-``write_html``), and its one-sentence verdict.
+``write_html``), made of what the stages of :mod:`ebus_env.diagnostics.pipeline` built
+(:func:`diagnosis_of`), and its one-sentence verdict.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ebus_env.diagnostics import residual
+from ebus_env.diagnostics import deciding, residual
 from ebus_env.diagnostics.ladder import Rung
 from ebus_env.units import with_unit
+
+if TYPE_CHECKING:
+    from ebus_env.diagnostics.diagnosis_run import DiagnosisRun
 
 
 @dataclass
@@ -175,3 +180,29 @@ def _sentence(found, by_name, model) -> str:
         text += (f"; it adds about {strength.energy_kwh:.3g} kWh to the log's energy use "
                  f"(90 % interval {low:.3g} to {high:.3g})")
     return text + "."
+
+
+def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
+    """The :class:`Diagnosis` of a run whose stages have all run."""
+    res, found, fits, known = ctx.res, ctx.found, ctx.fits, ctx.known
+    verdict, first_rung, normal, check = found.verdict, ctx.first_rung, ctx.normal, ctx.check
+    sentence = _sentence(found, ctx.by_name, ctx.by_name[verdict].model if verdict else ctx.model)
+    return Diagnosis(
+        bus=ctx.bus.name, logs=[p.name for p in ctx.profiles], basis=res.basis,
+        window_s=res.window_s, verdict=verdict, sentence=sentence, why=found.why,
+        to_decide=deciding.to_decide(found.status, [r["effect"] for r in found.ranking],
+                                     ctx.profiles),
+        significance=found.significance, status=found.status, mode_clue=found.clue,
+        ranking=found.ranking, parameters=found.parameters,
+        selected=found.selected, set_aside=ctx.aside, modes=found.modes, bins=found.bins,
+        worst_windows=found.worst, clues=found.clues, data_issues=res.issues,
+        excluded_windows=res.excluded, nrmse=fits.nrmse,
+        calibration={**first_rung.calibration_result.to_json(), "fixed": known}
+        if first_rung else None,
+        reference=normal.to_json() if normal else None,
+        resistance=check.to_json() if check else None,
+        ladder=fits.ladder, timings=ctx.timings, windows=res.windows, missing_w=res.missing_w,
+        noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
+        after_runs=fits.after_runs, anchored=res.anchored,
+        after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if ctx.add else
+        f"model + {verdict}")

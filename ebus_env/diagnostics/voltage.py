@@ -43,7 +43,7 @@ per cent from hour to hour."""
 MIN_SIGNIFICANCE = 3.0  # standard deviations the periods' ratios must stand apart
 MIN_EXPLAINED = 0.8
 """Share of the change an effect must reproduce to be named: in the finding, and as the
-verdict where the missing power names none (diagnose.voltage_stage)."""
+verdict where the missing power names none (stage08_voltage)."""
 MIN_HALF = 3  # periods each half of the log needs for its own strength fit
 PERIOD_H = 1.0  # the ratio is summarised per hour of log, or per quarter of a shorter one
 
