@@ -218,7 +218,9 @@ def calibrate(
 
 @app.command()
 def diagnose(
-    logs: Annotated[list[Path], typer.Argument(help="Measured log(s) with SoC (CSV/Parquet)")],
+    logs: Annotated[list[Path], typer.Argument(
+        help="Measured log(s) with SoC (CSV/Parquet), or a folder of them: several days of "
+             "one bus")],
     bus: BusOpt = "12m",
     with_: WithOpt = None,
     without: WithoutOpt = None,
@@ -239,6 +241,9 @@ def diagnose(
     soc_only: Annotated[bool, typer.Option(
         "--soc-only", help="Diagnose from SoC alone where the log has the pack's current "
         "too (see docs/validation.md: run both)")] = False,
+    domain: Annotated[str, typer.Option(
+        help="auto: second by second where the logs have the pack's current and voltage, "
+             "else SoC windows; power; soc")] = "auto",
     config: Annotated[str | None, typer.Option(
         help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml): its "
              "params free in place of the paper's, its ranges, fixed values and iSOPT "
@@ -269,7 +274,7 @@ def diagnose(
         print_diagnosis(diagnose_logs(
             logs, _bus(bus, with_, without, overlay), calibrate=calibrate, add=add or (),
             known=parse_settings(set_), reference=reference, window_s=window_s,
-            soc_only=soc_only, config=config, seed=seed,
+            soc_only=soc_only, domain=domain, config=config, seed=seed,
             reading=_reading(columns, gaps, fill, no_unit_check, start_time), html=html,
             json_path=json_path, console=shown), shown)
 

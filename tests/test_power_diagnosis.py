@@ -54,13 +54,16 @@ def test_the_bus_parameters_take_up_what_they_can_so_a_candidate_is_credited_onl
     assert held.test("same as c", nuisance.x[:, 2][None, :]).chi2 < 1.0
 
 
-def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, **case_changes):
+def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, plain: bool = False,
+            **case_changes):
     """A BMS log of a hidden-effect case (the project's model), its first ``hours``: current
-    and voltage kept, with a current sensor's gain and offset."""
+    and voltage kept, with a current sensor's gain and offset (``plain``: made by the
+    baseline bus, the effect not there)."""
     name = {None: "control", "cabin_hvac": "cabin_heating"}.get(effect, effect)
     case = replace(hidden.case(name), hours=hours, **case_changes)
     profile, _ = hidden.day_profile(case)
-    frame = synthetic_log(hidden.true_bus(case).build(hidden.DT_S), profile,
+    truth = hidden.baseline_bus(case) if plain else hidden.true_bus(case)
+    frame = synthetic_log(truth.build(hidden.DT_S), profile,
                           soc_start=case.soc_start, soc_step_pct=0.1, seed=seed)
     rng = np.random.default_rng(seed)
     frame["battery_current_a"] = frame["battery_current_a"] * 1.006 + 0.3 + rng.normal(
@@ -101,3 +104,39 @@ def test_a_cabin_heater_hidden_from_the_bus_is_named_and_a_control_day_names_not
     quiet = diagnose_power(hidden.baseline_bus(case), load(frame, tmp_path, "control"), [0])
     assert quiet.finding.status == "noise" and quiet.finding.verdict is None
     assert quiet.finding.tests[0].chi2 < quiet.finding.needed
+
+
+
+def on_day(frame, day: int):
+    """The same log ``day`` days later (its time stamps moved)."""
+    out = frame.copy()
+    out["timestamp"] = [(datetime.datetime.fromisoformat(t) + datetime.timedelta(days=day))
+                        .isoformat() for t in frame["timestamp"]]
+    return out
+
+
+@pytest.mark.slow
+def test_several_days_of_a_bus_name_the_effect_and_the_day_it_started(tmp_path):
+    """Three days of one bus's BMS logs through ``diagnose``: the cabin's heater, which the
+    bus's config lacks, runs from the second day on (on the first the bus is its config).
+    The diagnosis works in the power domain, fits the bus across the days, names the effect
+    and the date it started from, in its sentence and its JSON; three days with nothing
+    hidden name nothing."""
+    from ebus_env.diagnostics import diagnose
+
+    case = bms_day("cabin_hvac", hours=2.0)[0]
+    bus = hidden.baseline_bus(case)
+    heated = [bms_day("cabin_hvac", hours=2.0, seed=s)[1] for s in (5, 6, 7)]
+    plain = [bms_day("cabin_hvac", hours=2.0, seed=s, plain=True)[1] for s in (5, 6, 7)]
+    days = [on_day(f, k) for k, f in enumerate([plain[0], *heated[1:]])]
+    profiles = [p for k, f in enumerate(days) for p in load(f, tmp_path, f"day{k}")]
+    d = diagnose(bus, profiles)
+    assert d.domain == "power" and d.days == ["2026-01-14", "2026-01-15", "2026-01-16"]
+    assert d.verdict == "cabin_hvac" and d.since == "2026-01-15", (d.sentence, d.ranking[:3])
+    assert d.since_interval[0] <= "2026-01-15" <= d.since_interval[1]
+    assert d.sentence.startswith("From 2026-01-15 on, ")
+    assert d.nrmse["power_held_out_fall"]["cabin_hvac"] > 0.5
+    assert d.to_json()["since"] == "2026-01-15"
+    quiet = [p for k, f in enumerate(plain) for p in load(on_day(f, k), tmp_path, f"quiet{k}")]
+    q = diagnose(bus, quiet)
+    assert q.domain == "power" and q.verdict is None and q.status == "noise", q.sentence

@@ -17,7 +17,7 @@ from ebus_env.diagnostics.pipeline import diagnose
 from ebus_env.diagnostics.residual import PACK_SIGNALS
 from ebus_env.errors import LogError
 from ebus_env.inputs import check
-from ebus_env.io.log_reading import LogReading, refuse_same_log, refuse_twice
+from ebus_env.io.log_reading import LogReading, logs_in, refuse_same_log, refuse_twice
 from ebus_env.outputs import HTML_SUFFIXES, JSON_SUFFIXES, check_outputs, write_with
 
 if TYPE_CHECKING:
@@ -36,7 +36,7 @@ class LogDiagnosis:
 
 def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool = False,
                   add=(), known: dict[str, float] | None = None, reference=(),
-                  window_s: float | None = None, soc_only: bool = False,
+                  window_s: float | None = None, soc_only: bool = False, domain: str = "auto",
                   config: str | Path | None = None, seed: int = 0,
                   reading: LogReading | None = None, html: str | Path | None = None,
                   json_path: str | Path | None = None,
@@ -48,7 +48,8 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
     Parameters
     ----------
     logs
-        Measured logs with SoC (CSV or Parquet).
+        Measured logs with SoC (CSV or Parquet), or folders of them: several days of one bus
+        (each keeps its date where the log has date-times).
     bus
         Config name or path, or a :class:`~ebus_env.bus_choice.BusChoice`.
     calibrate
@@ -67,6 +68,9 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
         Window length [s] (default: the diagnosis's).
     soc_only
         Diagnose from SoC alone where the logs have the pack's current too.
+    domain
+        ``auto`` (the power domain on logs with the pack's current and voltage, else SoC
+        windows), ``power`` or ``soc``: see :func:`~ebus_env.diagnostics.diagnose`.
     config, seed
         Calibration config (its params, ranges, fixed values, iSOPT settings) and iSOPT's
         seed.
@@ -84,7 +88,7 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
         The :class:`~ebus_env.diagnostics.diagnosis_result.Diagnosis` and the files written.
     """
     choice, reading = BusChoice.of(bus), reading or LogReading()
-    logs, reference = [Path(p) for p in logs], [Path(p) for p in reference or ()]
+    logs, reference = logs_in(logs), logs_in(reference or (), "--reference")
     html, json_path = (None if p is None else Path(p) for p in (html, json_path))
     if window_s is not None:
         check("window_s", window_s, "--window-s")
@@ -125,7 +129,8 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
         result = diagnose(config_bus, profiles, calibrate=calibrate, add=split_names(add),
                           window_s=window_s, settings=replace(cfg.isopt, seed=seed),
                           polish_starts=cfg.polish_starts, loader_notes=notes, progress=say,
-                          freedom=Freedom.of(cfg, overrides), reference=normal or None)
+                          freedom=Freedom.of(cfg, overrides), reference=normal or None,
+                          domain=domain)
     if html:
         write_with(html, result.write_html)
     if json_path:

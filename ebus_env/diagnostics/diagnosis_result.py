@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ebus_env.diagnostics import deciding, residual
-from ebus_env.diagnostics.ladder import Rung
+from ebus_env.diagnostics.ladder import Rung, as_effect
+from ebus_env.diagnostics.power_stage import since_of
 from ebus_env.units import with_unit
 
 if TYPE_CHECKING:
@@ -61,6 +62,10 @@ class Diagnosis:
     after_runs: list = field(repr=False)  # the model "after" (nrmse["after_is"])
     anchored: list = field(repr=False)  # the window-anchored runs
     after_label: str = ""
+    domain: str = "soc"  # "power": BMS logs read second by second; "soc": SoC windows
+    days: list[str] = field(default_factory=list)  # each day's date (or log), power domain
+    since: str | None = None  # the day the verdict (or a load outside the library) acts from
+    since_interval: list[str] | None = None  # the days it may have started on (90 %)
 
     @property
     def range_ends(self) -> dict[str, str]:
@@ -114,7 +119,7 @@ class Diagnosis:
                 "significance", "status", "mode_clue", "ranking", "parameters", "selected",
                 "set_aside", "modes", "bins", "worst_windows", "clues", "data_issues",
                 "excluded_windows", "nrmse", "calibration", "reference", "resistance",
-                "timings")
+                "timings", "domain", "days", "since", "since_interval")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         out["unmet_demand_s"] = self.unmet_demand_s
@@ -152,19 +157,21 @@ def _plain(value):
     return value
 
 
-def _sentence(found, by_name, model) -> str:
+def _sentence(found, effect, model, since: str | None = None, power: bool = False) -> str:
     verdict = found.verdict
+    start = f"From {since} on, " if since else ""
     if found.status in ("outside library", "too few windows"):
-        return f"{found.why[:1].upper()}{found.why[1:]}."  # "no library effect explains ..."
+        why = start + found.why if start else found.why[:1].upper() + found.why[1:]
+        return f"{why}."  # "no library effect explains ..."
     if verdict is None:
         return f"No missing effect is supported by the data: {found.why}."
-    top = next(a for a in found.ranking if a["effect"] == verdict)
-    eff = by_name[verdict].effect
-    title = eff.title[:1].upper() + eff.title[1:]
-    text = (f"{title} ({verdict}): {found.why}" if found.status in ("voltage", "re-calibrated")
-            else
-            f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
-            "of the missing battery power on held-out windows")
+    top = next((a for a in found.ranking if a["effect"] == verdict), None)
+    title = effect.title if start else effect.title[:1].upper() + effect.title[1:]
+    text = start + (
+        f"{title} ({verdict}): {found.why}" if found.status in ("voltage", "re-calibrated")
+        or power else
+        f"{title} ({verdict}) explains {100 * top['explained_fraction']:.0f} % "
+        "of the missing battery power on held-out windows")
 
     def shown(value):
         return f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"  # not 4.91e+03
@@ -186,7 +193,15 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
     """The :class:`Diagnosis` of a run whose stages have all run."""
     res, found, fits, known = ctx.res, ctx.found, ctx.fits, ctx.known
     verdict, first_rung, normal, check = found.verdict, ctx.first_rung, ctx.normal, ctx.check
-    sentence = _sentence(found, ctx.by_name, ctx.by_name[verdict].model if verdict else ctx.model)
+    since, since_interval = since_of(ctx.power, ctx.days) if ctx.power else (None, None)
+    if ctx.power is not None:  # the power path's bus: the model the strength is a value of
+        effect = as_effect(verdict) if verdict else None
+        model = ctx.power.model if effect is None else ctx.bus.with_effect(
+            effect).build(ctx.dt_s)
+    else:
+        effect = ctx.by_name[verdict].effect if verdict else None
+        model = ctx.by_name[verdict].model if verdict else ctx.model
+    sentence = _sentence(found, effect, model, since, ctx.power is not None)
     return Diagnosis(
         bus=ctx.bus.name, logs=[p.name for p in ctx.profiles], basis=res.basis,
         window_s=res.window_s, verdict=verdict, sentence=sentence, why=found.why,
@@ -205,4 +220,5 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
         noise_w=res.noise_w, usable=res.usable, verdict_w=found.verdict_w, runs=fits.runs,
         after_runs=fits.after_runs, anchored=res.anchored,
         after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if ctx.add else
-        f"model + {verdict}")
+        f"model + {verdict}", domain=ctx.domain, days=ctx.days, since=since,
+        since_interval=since_interval)

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from ebus_env.config import BusConfig
     from ebus_env.diagnostics.ladder import Freedom, Rung
     from ebus_env.diagnostics.normal_day import Reference
+    from ebus_env.diagnostics.power_path import PowerRun
     from ebus_env.diagnostics.stage04_residual import Residual
     from ebus_env.diagnostics.stage06_attribution import Attributed
     from ebus_env.diagnostics.stage11_ladder import Fits
@@ -41,6 +42,7 @@ class DiagnosisRun:
     progress: Callable[[str], None] | None = None
     freedom: Freedom | None = None
     reference: Sequence | Reference | None = None  # a normal day: its profiles, or measured
+    domain: str = "auto"  # power, soc or auto (the intake settles it: power_stage.domain_of)
     # -- what the stages build
     timings: dict[str, float] = field(default_factory=dict)  # seconds, by part of the run
     started: float = field(default_factory=time.perf_counter)  # perf_counter at the start
@@ -56,6 +58,8 @@ class DiagnosisRun:
     candidates: list = field(default_factory=list)  # candidates: effects' and parameters'
     by_name: dict = field(default_factory=dict)  # candidates: each by its name
     aside: list[dict] = field(default_factory=list)  # candidates: effects set aside, and why
+    power: PowerRun | None = None  # power stage (BMS logs): the power path's run
+    days: list[str] = field(default_factory=list)  # power stage: each day's date or log
     found: Attributed | None = None  # attribution, then bound, voltage, tie, outside
     fits: Fits | None = None  # ladder: the errors before and after, the ladder, the runs
 

@@ -27,6 +27,11 @@ and passes it through the stages below, in this order; each is a module with a
 11. ``stage11_ladder``: the held-out NRMSE before and after the verdict's effect, or the error
     ladder of the effects added, and the runs behind the plots.
 
+On BMS logs (the pack's current and voltage on every row) :mod:`~ebus_env.diagnostics.power_stage`
+takes the place of stages 5-10: the missing power second by second, every bus-to-bus parameter
+fitted to the logged power, each candidate decided by a held-out test, and on several days of
+one bus from which day an effect acts (``domain`` chooses).
+
 :func:`~ebus_env.diagnostics.diagnosis_result.diagnosis_of` then makes the
 :class:`~ebus_env.diagnostics.diagnosis_result.Diagnosis`; its ``to_json``, ``text`` and
 ``write_html`` give the report. Stages 7-10 need a calibration and settle, each, one way the
@@ -40,6 +45,7 @@ from collections.abc import Sequence
 
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics import (
+    power_stage,
     stage01_intake,
     stage02_reference,
     stage03_calibration,
@@ -62,7 +68,8 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
              add: Sequence = (), window_s: float | None = None, settings=None,
              polish_starts: int | None = None, loader_notes: Sequence[str] = (),
              progress=None, freedom: Freedom | None = None,
-             reference: Sequence | Reference | None = None) -> Diagnosis:
+             reference: Sequence | Reference | None = None, domain: str = "auto"
+             ) -> Diagnosis:
     """Diagnose ``bus`` against measured ``profiles``, in the stages of the module docstring.
 
     ``calibrate`` fits the paper's parameters on the calibration blocks first (see
@@ -73,26 +80,35 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     :func:`~ebus_env.diagnostics.stage02_reference.reference_stage` made of them), makes the
     diagnosis relative to that day (:mod:`ebus_env.diagnostics.normal_day`; it implies
     ``calibrate``). ``progress`` is called with a line of text as each long step starts.
+    ``domain``: ``"power"`` reads BMS logs second by second (:mod:`.power_stage`), ``"soc"``
+    in SoC windows, ``"auto"`` the power domain where every log has the pack's current and
+    voltage and no reference day is given. ``profiles`` may be several days of one bus, each
+    keeping its date: in the power domain the bus's own parameters are fitted across them
+    and each effect is tried from each day on too.
     ``timings`` of the result: ``reference_s`` and ``calibration_s`` from the start, the
     others each its own part.
     """
     ctx = DiagnosisRun(bus, profiles, calibrate=calibrate, add=add, window_s=window_s,
                        settings=settings, polish_starts=polish_starts,
                        loader_notes=loader_notes, progress=progress, freedom=freedom,
-                       reference=reference)
+                       reference=reference, domain=domain)
     stage01_intake.run(ctx)
     stage02_reference.run(ctx)
     stage03_calibration.run(ctx)
     with ctx.timed("residual_s"):
         stage04_residual.run(ctx)
-    with ctx.timed("candidates_s"):
-        stage05_candidates.run(ctx)
-    with ctx.timed("attribution_s"):
-        stage06_attribution.run(ctx)
-        stage07_bound.run(ctx)  # 7-10: each settles only what the stages before left open
-        stage08_voltage.run(ctx)
-        stage09_tie.run(ctx)
-        stage10_outside.run(ctx)
+    if ctx.domain == "power":
+        with ctx.timed("attribution_s"):
+            power_stage.run(ctx)  # stages 5-10 in the power domain
+    else:
+        with ctx.timed("candidates_s"):
+            stage05_candidates.run(ctx)
+        with ctx.timed("attribution_s"):
+            stage06_attribution.run(ctx)
+            stage07_bound.run(ctx)  # 7-10: each settles only what the stages before left open
+            stage08_voltage.run(ctx)
+            stage09_tie.run(ctx)
+            stage10_outside.run(ctx)
     with ctx.timed("fit_s"):
         stage11_ladder.run(ctx)
     ctx.timings["total_s"] = ctx.elapsed_s()

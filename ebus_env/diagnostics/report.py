@@ -48,7 +48,7 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
     out.append(("Which effect is missing (held-out share of the missing power, with its "
                 "5-95 % band over bootstrap resamples of the windows)",
                 ["effect", "kind", "explained %", "band %", "estimate (90 % interval)"],
-                [[r["effect"], r["kind"], _f(100 * r["explained_fraction"], 0),
+                [[r.get("label", r["effect"]), r["kind"], _f(100 * r["explained_fraction"], 0),
                   "{:.0f} to {:.0f}".format(*(100 * b for b in r["explained_band"])),
                   ", ".join([f"{k} = {v:.4g} ({r['interval'][k][0]:.4g} to "
                              f"{r['interval'][k][1]:.4g})" for k, v in r["parameters"].items()]

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from ebus_env.config import BusConfig
 from ebus_env.diagnostics.ladder import Freedom, as_effect, check_known, split_blocks
+from ebus_env.diagnostics.power_stage import DOMAINS, domain_of
 from ebus_env.errors import ConfigError
 from ebus_env.inputs import check as check_input
 from ebus_env.profile import as_profiles
@@ -30,6 +31,9 @@ def run(ctx: DiagnosisRun) -> None:
         raise ConfigError(f"diagnose: give a bus config (load_bus('12m')), not a "
                           f"{type(ctx.bus).__name__}: the diagnosis builds its own models of it.")
     ctx.profiles = profiles = as_profiles(ctx.profiles, "diagnose")
+    if ctx.domain not in DOMAINS:
+        raise ConfigError(f"diagnose: domain={ctx.domain!r} is not one of {', '.join(DOMAINS)}.")
+    ctx.domain = domain_of(ctx)
     if ctx.window_s is not None:
         check_input("window_s", ctx.window_s, "diagnose(window_s=...)")
     ctx.add = [as_effect(a) for a in ctx.add]

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ebus_env.diagnostics.ladder import Freedom, error_ladder, fit_on_blocks
+from ebus_env.diagnostics.power_stage import held_out_falls as power_falls
 from ebus_env.diagnostics.refit import refit_with
 from ebus_env.diagnostics.stage06_attribution import Attributed, ranked_with
 
@@ -34,7 +35,10 @@ def run(ctx: DiagnosisRun) -> None:
     """Fill ``ctx.fits``: the held-out NRMSE of the model before, and after the verdict's
     effect (or the error ladder of ``ctx.add``), each re-calibrated; with a calibration, of
     the model as configured too (``configured``: whether calibrating on the calibration
-    blocks helped on the others). Then ``ctx.found``'s strength :func:`with_refit`."""
+    blocks helped on the others). Then ``ctx.found``'s strength :func:`with_refit`. In the
+    power domain the fall after each effect is that of the held-out missing power
+    (``nrmse["power_held_out_fall"]``), and the SoC ladder of ``ctx.add`` runs only with a
+    calibration."""
     profiles, blocks, res, found, first_rung = (ctx.profiles, ctx.blocks, ctx.res, ctx.found,
                                                 ctx.first_rung)
     model, values, verdict = res.model, res.values, found.verdict
@@ -48,7 +52,7 @@ def run(ctx: DiagnosisRun) -> None:
         nrmse["configured"] = _errors(*fit_on_blocks(model, configured, profiles, *blocks))
     runs = [model.simulate(p, res.params, record_every=res.every) for p in profiles]
     after_model, after_values, ladder = None, {}, []
-    if ctx.add:
+    if ctx.add and (ctx.domain == "soc" or first_rung is not None):
         ctx.say("error ladder")
         ladder = error_ladder(ctx.bus, profiles, ctx.add, ctx.dt_s, ctx.settings,
                               ctx.polish_starts, first_rung, blocks,
@@ -57,7 +61,7 @@ def run(ctx: DiagnosisRun) -> None:
                               freedom=ctx.freedom)
         after_model, after_values = ladder[-1].model, ladder[-1].values
         nrmse["after_is"] = f"the last rung of the error ladder ({ladder[-1].label})"
-    elif verdict is not None:
+    elif verdict is not None and ctx.domain == "soc":
         best = ctx.by_name[verdict]
         after_model, after_values = best.model, {**values, **found.estimate}
         nrmse["after_is"] = f"+ {verdict} at its estimated strength (fitted on calibration blocks)"
@@ -79,6 +83,8 @@ def run(ctx: DiagnosisRun) -> None:
         after_params = after_model.param_vector(after_model.carry_over(after_values))
         after_runs = [after_model.simulate(p, after_params, record_every=res.every)
                       for p in profiles]
+    if ctx.power is not None:
+        nrmse["power_held_out_fall"] = power_falls(ctx.power)
     ctx.fits = Fits(nrmse, ladder, runs, after_runs, after_values)
     ctx.found = with_refit(found, after_values)
 

@@ -16,9 +16,29 @@ from ebus_env.outputs import same_bytes, same_file
 if TYPE_CHECKING:
     from rich.console import Console
 
+LOG_PATTERNS = ("*.csv", "*.csv.gz", "*.parquet")
+"""The logs a folder given in place of logs holds."""
+
 MAX_ACCEL_MPS2 = 4.0
 """Steps of a log that accelerate faster than this are reported by the loader: the model cannot
 follow them exactly."""
+
+
+def logs_in(paths, option: str = "LOGS") -> list[Path]:
+    """``paths`` with each folder replaced by its logs (:data:`LOG_PATTERNS`), sorted by
+    name: a folder of one bus's days reads as its days in order."""
+    out: list[Path] = []
+    for path in map(Path, paths):
+        if not path.is_dir():
+            out.append(path)
+            continue
+        logs = sorted({p for pattern in LOG_PATTERNS for p in path.glob(pattern)})
+        if not logs:
+            raise ConfigError(f"{option} {path}: a folder without logs "
+                              f"({', '.join(LOG_PATTERNS)}); give the folder of the logs, or "
+                              "the logs themselves.")
+        out += logs
+    return out
 
 
 def clock_h(text: str) -> float:

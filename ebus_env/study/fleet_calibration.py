@@ -23,10 +23,10 @@ import pandas as pd
 
 from ebus_env import paths
 from ebus_env.errors import ConfigError
+from ebus_env.io.log_reading import logs_in
 from ebus_env.outputs import atomic
 
 Z_LIMIT = 3.5
-PATTERNS = ("*.csv", "*.csv.gz", "*.parquet")
 
 
 def fleet_logs(logs_dir: str | Path) -> list[Path]:
@@ -34,10 +34,7 @@ def fleet_logs(logs_dir: str | Path) -> list[Path]:
     folder = paths.here_or_shipped(logs_dir)
     if not folder.is_dir():
         raise ConfigError(f"--fleet {folder}: not a folder; give the folder of bus-day logs.")
-    logs = sorted({p for pattern in PATTERNS for p in folder.glob(pattern)})
-    if not logs:
-        raise ConfigError(f"--fleet {folder}: no logs (*.csv, *.csv.gz, *.parquet) in it.")
-    return logs
+    return logs_in([folder], "--fleet")
 
 
 def calibrate_log(path: Path, bus: str, columns: str | None, free: list[str] | None,
