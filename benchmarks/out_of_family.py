@@ -253,16 +253,19 @@ def _verdict_row(d, truth: dict, source: str, name: str, hidden, oracle: bool) -
 
 
 def diagnose_truth_day(job, ladder: bool = True) -> dict:
-    """Diagnose one truth day, calibrated, and (``ladder``) add the right effect and
-    re-calibrate (worker of the pool). ``job``: a :class:`Job`, or the tuple ``(source, case,
-    folder[, current_voltage, oracle, reference, known_mass, days])``. On an oracle day (the
+    """Diagnose one truth day and (``ladder``) measure the error's fall with the right effect
+    added (worker of the pool): a SoC-only log calibrated, the effect added and the bus
+    re-calibrated (the held-out SoC NRMSE's fall); a BMS log in the power domain, the bus
+    fitted to the logged power (the held-out missing power's fall). ``job``: a
+    :class:`Job`, or the tuple ``(source, case, folder[, current_voltage, oracle, reference,
+    known_mass, days])``. On an oracle day (the
     log carries the hidden effect's own power) the right effect is the library's or
     :data:`ORACLE`, and the ladder adds :data:`ORACLE`: the hidden effect in a perfect form.
     On a control day the ladder adds one of :data:`CONTROL_ADDS`. With ``days`` > 1 the
     case's day and ``days - 1`` more days of the same bus
     (:func:`~benchmarks.truth.cases.same_bus_case`) are diagnosed together, as one bus's
     logs."""
-    from ebus_env.diagnostics.ladder import error_ladder, split_blocks
+    from ebus_env.diagnostics.ladder import as_effect, error_ladder, split_blocks
 
     if isinstance(job, Job):
         source, case, folder, current_voltage = job.source, job.item, job.folder, job.log == "bms"
@@ -291,28 +294,33 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
 
         normal_day = truth_day(source, reference_case(case), Path(folder), current_voltage)[0]
         reference = reference_stage(bus, normal_day)
-    d = diagnose(bus, profiles, calibrate=True, reference=reference or None, freedom=freedom)
+    expected = truth["expected_verdict"]
+    # the right effect: the library's, or for a load it lacks the user's own file; on an
+    # oracle day the hidden effect's own power; on a control day an effect that is not there
+    added = (ORACLE if oracle else USER_EFFECTS.get(case.hidden)
+             if expected == "outside_library" else
+             CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)] if expected is None
+             else expected)
+    power = current_voltage and not reference  # a BMS log: second by second (power domain)
+    if power:  # the bus fitted to the logged power; each candidate's held-out fall with it
+        d = diagnose(bus, profiles, add=[added] if ladder and added else (), freedom=freedom,
+                     domain="power")
+    else:
+        d = diagnose(bus, profiles, calibrate=True, reference=reference or None,
+                     freedom=freedom)
     if reference:  # the ladder searches as the diagnosis did
         bus = bus.overlay(reference.overlay(), "the reference day")
         freedom = reference.freedom(bus.build(profiles[0].dt_s), freedom)
     row = {"cpu_s": time.process_time() - cpu0, "log": "bms" if current_voltage else "soc",
-           "kind": "day",
+           "kind": "day", "domain": d.domain,
            **_verdict_row(d, truth, source, case.case_id, case.hidden, oracle),
            "days": days, "time_s": time.perf_counter() - t0,
-           "hours": sum(p.duration_s for p in profiles) / 3600.0}
-    expected = truth["expected_verdict"]
-    # the right effect: the library's, or for a load it lacks the user's own file; on an
-    # oracle day the hidden effect's own power; on a control day an effect that is not there
-    if oracle:
-        row["added"] = ORACLE
-    elif expected == "outside_library":
-        row["added"] = USER_EFFECTS.get(case.hidden)
-    elif expected is None:
-        row["added"] = CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)]
-    else:
-        row["added"] = expected
-    if ladder and row["added"]:
-        rungs = error_ladder(bus, profiles, [row["added"]], profiles[0].dt_s,
+           "hours": sum(p.duration_s for p in profiles) / 3600.0, "added": added}
+    if ladder and added and power:  # the held-out missing power's fall
+        falls = d.nrmse.get("power_held_out_fall", {})
+        row["fall"] = falls.get(as_effect(added).name)
+    elif ladder and added:
+        rungs = error_ladder(bus, profiles, [added], profiles[0].dt_s,
                              first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
         row["nrmse"] = (rungs[0].held_out["nrmse"], rungs[-1].held_out["nrmse"])
         row["fall"] = improvement(rungs)
@@ -341,8 +349,11 @@ def diagnose_truth_bus(job: Job) -> dict:
     profiles, records, truth = truth_bus(job.source, bus_case, Path(job.folder), job.log == "bms")
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     t0, cpu0 = time.perf_counter(), time.process_time()
-    d = diagnose(bus, profiles, calibrate=True)
+    # a BMS log: second by second, the bus fitted to the logged power (power domain)
+    d = diagnose(bus, profiles, calibrate=job.log != "bms",
+                 domain="power" if job.log == "bms" else "soc")
     return {"cpu_s": time.process_time() - cpu0, "log": job.log, "kind": "bus",
+            "domain": d.domain,
             **_verdict_row(d, truth, job.source, bus_case.bus_id, bus_case.condition, False),
             "condition_kind": truth["kind"], "start_day": truth["start_day"],
             "start_date": truth["start_date"], "dates": truth["dates"],

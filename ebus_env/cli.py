@@ -242,8 +242,9 @@ def diagnose(
         "--soc-only", help="Diagnose from SoC alone where the log has the pack's current "
         "too (see docs/validation.md: run both)")] = False,
     domain: Annotated[str, typer.Option(
-        help="auto: second by second where the logs have the pack's current and voltage, "
-             "else SoC windows; power; soc")] = "auto",
+        help="soc: SoC windows; power: BMS logs (the pack's current and voltage) second by "
+             "second, several days of a bus with the day a change started; auto: power where "
+             "the logs allow")] = "soc",
     config: Annotated[str | None, typer.Option(
         help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml): its "
              "params free in place of the paper's, its ranges, fixed values and iSOPT "

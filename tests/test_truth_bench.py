@@ -426,7 +426,8 @@ def test_days_of_one_bus_are_diagnosed_together_with_their_effect_energy_summed(
         seen.append(len(profiles))
         return SimpleNamespace(verdict=None, status="outside library", mode_clue=None,
                                to_json=lambda: {"modes": {}, "clues": []}, resistance=None,
-                               ranking=[], named={}, why="", range_ends={})
+                               ranking=[], named={}, why="", range_ends={},
+                               domain=options.get("domain", "soc"))
 
     case = replace(bench.truth_cases("truthsim", smoke=False, per_effect=1, controls=0,
                                      effects=("passenger_mass",))[0], hours=0.1)
@@ -606,7 +607,7 @@ def test_a_bus_is_diagnosed_from_all_its_days_at_once_with_their_dates(tmp_path,
                                                 "since_interval": ["2025-11-20", "2025-12-09"]},
                                resistance=None, ranking=[{"effect": "regen_soc_limit"}],
                                named={"parameters": {}, "interval": {}}, why="",
-                               range_ends={})
+                               range_ends={}, domain=options.get("domain", "soc"))
 
     monkeypatch.setattr(bench, "truth_module", lambda source: (Source, ""))
     monkeypatch.setattr(bench, "diagnose", diagnose)

@@ -36,7 +36,7 @@ class LogDiagnosis:
 
 def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool = False,
                   add=(), known: dict[str, float] | None = None, reference=(),
-                  window_s: float | None = None, soc_only: bool = False, domain: str = "auto",
+                  window_s: float | None = None, soc_only: bool = False, domain: str = "soc",
                   config: str | Path | None = None, seed: int = 0,
                   reading: LogReading | None = None, html: str | Path | None = None,
                   json_path: str | Path | None = None,
@@ -69,8 +69,9 @@ def diagnose_logs(logs, bus: str | Path | BusChoice = "12m", *, calibrate: bool 
     soc_only
         Diagnose from SoC alone where the logs have the pack's current too.
     domain
-        ``auto`` (the power domain on logs with the pack's current and voltage, else SoC
-        windows), ``power`` or ``soc``: see :func:`~ebus_env.diagnostics.diagnose`.
+        ``soc`` (SoC windows), ``power`` (BMS logs second by second) or ``auto`` (the power
+        domain on logs with the pack's current and voltage): see
+        :func:`~ebus_env.diagnostics.diagnose`.
     config, seed
         Calibration config (its params, ranges, fixed values, iSOPT settings) and iSOPT's
         seed.

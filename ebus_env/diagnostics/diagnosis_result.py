@@ -193,6 +193,8 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
     """The :class:`Diagnosis` of a run whose stages have all run."""
     res, found, fits, known = ctx.res, ctx.found, ctx.fits, ctx.known
     verdict, first_rung, normal, check = found.verdict, ctx.first_rung, ctx.normal, ctx.check
+    if ctx.power is not None and ctx.power.resistance is not None:
+        check = ctx.power.resistance  # with the effects the power path tried
     since, since_interval = since_of(ctx.power, ctx.days) if ctx.power else (None, None)
     if ctx.power is not None:  # the power path's bus: the model the strength is a value of
         effect = as_effect(verdict) if verdict else None

@@ -42,7 +42,7 @@ class DiagnosisRun:
     progress: Callable[[str], None] | None = None
     freedom: Freedom | None = None
     reference: Sequence | Reference | None = None  # a normal day: its profiles, or measured
-    domain: str = "auto"  # power, soc or auto (the intake settles it: power_stage.domain_of)
+    domain: str = "soc"  # soc, power or auto (the intake settles it: power_stage.domain_of)
     # -- what the stages build
     timings: dict[str, float] = field(default_factory=dict)  # seconds, by part of the run
     started: float = field(default_factory=time.perf_counter)  # perf_counter at the start

@@ -68,7 +68,7 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
              add: Sequence = (), window_s: float | None = None, settings=None,
              polish_starts: int | None = None, loader_notes: Sequence[str] = (),
              progress=None, freedom: Freedom | None = None,
-             reference: Sequence | Reference | None = None, domain: str = "auto"
+             reference: Sequence | Reference | None = None, domain: str = "soc"
              ) -> Diagnosis:
     """Diagnose ``bus`` against measured ``profiles``, in the stages of the module docstring.
 
@@ -80,11 +80,11 @@ def diagnose(bus: BusConfig, profiles: Sequence, *, calibrate: bool = False,
     :func:`~ebus_env.diagnostics.stage02_reference.reference_stage` made of them), makes the
     diagnosis relative to that day (:mod:`ebus_env.diagnostics.normal_day`; it implies
     ``calibrate``). ``progress`` is called with a line of text as each long step starts.
-    ``domain``: ``"power"`` reads BMS logs second by second (:mod:`.power_stage`), ``"soc"``
-    in SoC windows, ``"auto"`` the power domain where every log has the pack's current and
-    voltage and no reference day is given. ``profiles`` may be several days of one bus, each
-    keeping its date: in the power domain the bus's own parameters are fitted across them
-    and each effect is tried from each day on too.
+    ``domain``: ``"soc"`` (the default) reads the logs in SoC windows, ``"power"`` BMS logs
+    second by second (:mod:`.power_stage`), ``"auto"`` the power domain where every log has
+    the pack's current and voltage and no reference day is given. ``profiles`` may be
+    several days of one bus, each keeping its date: in the power domain the bus's own
+    parameters are fitted across them and each effect is tried from each day on too.
     ``timings`` of the result: ``reference_s`` and ``calibration_s`` from the start, the
     others each its own part.
     """

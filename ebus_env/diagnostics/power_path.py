@@ -234,8 +234,13 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
            "coefficient": test.beta}
     if form.strengths is not None and form.strength_param:
         out["parameters"] = {form.strength_param: float(form.strengths[test.choice])}
-        out["interval"] = {form.strength_param:
-                           [float(x) for x in np.quantile(values, [0.05, 0.95])]}
+        low, high = np.quantile(values, [0.05, 0.95])
+        grid = np.sort(np.asarray(form.strengths, float))
+        # no finer than the grid of strengths tried: out to halfway to the next ones
+        below, above = grid[grid < low], grid[grid > high]
+        low = min(low, 0.5 * (low + below[-1])) if len(below) else low
+        high = max(high, 0.5 * (high + above[0])) if len(above) else high
+        out["interval"] = {form.strength_param: [float(low), float(high)]}
     return out
 
 

@@ -27,9 +27,10 @@ from ebus_env.errors import ConfigError
 if TYPE_CHECKING:
     from ebus_env.diagnostics.diagnosis_run import DiagnosisRun
 
-DOMAINS = ("auto", "power", "soc")
-"""``auto``: the power domain where every log carries the pack's current and voltage (and no
-reference day is given), SoC windows otherwise."""
+DOMAINS = ("soc", "power", "auto")
+"""``soc``: SoC windows (the default: on BMS logs the current counts the charge in each);
+``power``: BMS logs second by second; ``auto``: the power domain where every log carries the
+pack's current and voltage and no reference day is given, SoC windows otherwise."""
 
 
 def domain_of(ctx: DiagnosisRun) -> str:
@@ -85,9 +86,10 @@ def gain_band(test, boot: int = 200, seed: int = 0) -> tuple[float, float]:
 
 
 def ranking_of(power, days: list[str]) -> list[dict]:
-    """A row per candidate tested, best first: the share of the held-out missing power it
-    removes (``explained_fraction``), its held-out chi-square against the one needed, the day
-    it acts from, and the energy it adds over the logs."""
+    """A row per candidate tested, the verdict's first, then by held-out chi-square: the share
+    of the held-out missing power it removes (``explained_fraction``, with its 5-95 % band over
+    block resamples), its chi-square against the one needed, the day it acts from, and the
+    energy it adds over the logs at its fit (the verdict's: with its 90 % interval)."""
     f = power.finding
     rows = []
     for t in f.tests:
@@ -97,7 +99,7 @@ def ranking_of(power, days: list[str]) -> list[dict]:
                "explained_fraction": t.gain, "explained_band": list(band),
                "chi2": t.chi2, "needed": f.needed, "since": days[form.since_day],
                "since_day": form.since_day, "parameters": {}, "interval": {},
-               "energy_kwh": energy_kwh(t, form)}
+               "fitted_energy_kwh": energy_kwh(t, form)}
         rows.append(row)
     if f.verdict is not None and f.strength:
         named = next(r for r in rows if r["effect"] == f.verdict
@@ -106,6 +108,8 @@ def ranking_of(power, days: list[str]) -> list[dict]:
                   "interval": {k: tuple(v) for k, v in f.strength.get("interval", {}).items()},
                   "energy_kwh": f.strength["energy_kwh"],
                   "energy_interval_kwh": tuple(f.strength["energy_interval_kwh"])}
+        rows.remove(named)
+        rows.insert(0, named)  # the verdict's row first (Diagnosis.named reads it)
     return rows
 
 
