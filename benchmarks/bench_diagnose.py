@@ -296,6 +296,9 @@ def main() -> None:
                         help="out of family: diagnose N days of each case's bus together "
                         "(its day and N - 1 more, the same effect hidden; the truth "
                         "simulator's days)")
+    parser.add_argument("--power-domain", action="store_true",
+                        help="out of family: BMS logs second by second (diagnose --domain "
+                        "power), not in SoC windows")
     args = parser.parse_args()
     if args.days_per_bus < 1:
         parser.error(f"--days-per-bus must be 1 or more, not {args.days_per_bus}")
@@ -325,7 +328,7 @@ def main() -> None:
                       logs=logs, kinds=tuple(args.kind or ("day", "bus")),
                       per_condition=args.per_condition, control_buses=args.control_buses,
                       shard=shard, tune_source=args.tune_source,
-                      generate_only=args.generate_only)
+                      generate_only=args.generate_only, power_domain=args.power_domain)
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.smoke:

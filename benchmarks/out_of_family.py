@@ -82,6 +82,7 @@ class Job:
     reference: bool = False
     known_mass: bool = False
     days: int = 1
+    domain: str = "soc"  # a BMS log's: "power" reads it second by second
 
     @property
     def key(self) -> tuple[str, str, str, str]:
@@ -301,7 +302,8 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
              if expected == "outside_library" else
              CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)] if expected is None
              else expected)
-    power = current_voltage and not reference  # a BMS log: second by second (power domain)
+    # a BMS log in the power domain: second by second
+    power = isinstance(job, Job) and job.domain == "power" and current_voltage and not reference
     if power:  # the bus fitted to the logged power; each candidate's held-out fall with it
         d = diagnose(bus, profiles, add=[added] if ladder and added else (), freedom=freedom,
                      domain="power")
@@ -349,9 +351,9 @@ def diagnose_truth_bus(job: Job) -> dict:
     profiles, records, truth = truth_bus(job.source, bus_case, Path(job.folder), job.log == "bms")
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     t0, cpu0 = time.perf_counter(), time.process_time()
-    # a BMS log: second by second, the bus fitted to the logged power (power domain)
-    d = diagnose(bus, profiles, calibrate=job.log != "bms",
-                 domain="power" if job.log == "bms" else "soc")
+    # a BMS log in the power domain: second by second, the bus fitted to the logged power
+    power = job.domain == "power" and job.log == "bms"
+    d = diagnose(bus, profiles, calibrate=not power, domain="power" if power else "soc")
     return {"cpu_s": time.process_time() - cpu0, "log": job.log, "kind": "bus",
             "domain": d.domain,
             **_verdict_row(d, truth, job.source, bus_case.bus_id, bus_case.condition, False),
@@ -518,7 +520,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
                   days: int = 1, *, logs: tuple[str, ...] | None = None,
                   kinds: tuple[str, ...] = KINDS, per_condition: int | None = None,
                   control_buses: int | None = None, shard: tuple[int, int] | None = None,
-                  tune_source: str = TUNE_SOURCE, generate_only: bool = False) -> list[dict]:
+                  tune_source: str = TUNE_SOURCE, generate_only: bool = False,
+                  power_domain: bool = False) -> list[dict]:
     """Run the bench's jobs (or a shard of them) and print the report of every row so far;
     ``smoke``: the CI subset (:func:`ci_jobs`; with ``oracle``, ``reference``, ``known_mass``
     or ``days``: the smoke days of :func:`truth_cases`).
@@ -526,7 +529,8 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
     ``logs``: the log types (default both; ``current_voltage`` alone: BMS logs only, as
     before); ``kinds``: single days and/or multi-day buses (the oracle, reference,
     known-mass and days-per-bus variants are single days'); ``generate_only``: make and
-    cache the days, diagnose nothing."""
+    cache the days, diagnose nothing; ``power_domain``: BMS logs second by second
+    (``diagnose(domain="power")``), not in SoC windows."""
     from concurrent.futures import ProcessPoolExecutor
     from functools import partial
     from multiprocessing import get_context
@@ -543,12 +547,15 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
           + (", the true curb mass held (--known-curb-mass)" if known_mass else "")
           + (f", {days} days of each case's bus diagnosed together (--days-per-bus)"
              if days > 1 else "")
+          + ("; BMS logs second by second (--power-domain)" if power_domain else "")
           + (f"; shard {shard[0]} of {shard[1]}" if shard else ""))
     if smoke and not (oracle or reference or known_mass or days > 1):  # the CI subset
         listed = [j for j in ci_jobs(folder, sources) if j.log in logs and j.kind in kinds]
     else:
         listed = jobs(folder, smoke, sources, logs, kinds, per_effect, controls, effects,
                       per_condition, control_buses, oracle, reference, known_mass, days)
+    if power_domain:
+        listed = [replace(j, domain="power") if j.log == "bms" else j for j in listed]
     todo = shard_of(listed, shard)
     rows = []
     if resume and rows_path is not None and rows_path.exists():  # the jobs already done
