@@ -162,3 +162,18 @@ def test_a_folder_of_logs_reads_as_its_days_in_order(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="empty: a folder without logs"):
         logs_in([tmp_path / "empty"])
+
+
+def test_the_power_domain_needs_the_current_and_voltage_and_a_known_domain(tmp_path):
+    """``domain="power"`` on a log without the pack's current and voltage is an error that
+    names the log and the columns; an unknown domain is refused."""
+    from ebus_env.diagnostics import diagnose
+    from ebus_env.errors import ConfigError
+
+    case, frame = bms_day(None, hours=0.5)
+    soc_only = load(frame.drop(columns=["battery_current_a", "battery_voltage_v"]), tmp_path,
+                    "soc_only")
+    with pytest.raises(ConfigError, match="soc_only lack.*battery_current_a"):
+        diagnose(hidden.baseline_bus(case), soc_only, domain="power")
+    with pytest.raises(ConfigError, match="domain='watts' is not one of soc, power, auto"):
+        diagnose(hidden.baseline_bus(case), soc_only, domain="watts")

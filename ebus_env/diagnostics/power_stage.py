@@ -39,9 +39,9 @@ def domain_of(ctx: DiagnosisRun) -> str:
     if ctx.domain == "power" and not bms:
         missing = [p.name for p in ctx.profiles if not logs_power(p)]
         raise ConfigError(f"diagnose(domain='power') needs the pack's current and voltage on "
-                         f"every row, and {', '.join(dict.fromkeys(missing))} lack(s) them. "
-                         "Fix: map the battery_current_a and battery_voltage_v columns, or "
-                         "use domain='soc'.")
+                          f"every row, and {', '.join(dict.fromkeys(missing))} lack(s) them. "
+                          "Fix: map the battery_current_a and battery_voltage_v columns, or "
+                          "use domain='soc'.")
     if ctx.domain == "power":
         return "power"
     return "power" if ctx.domain == "auto" and bms and ctx.reference is None else "soc"
@@ -66,10 +66,6 @@ def run(ctx: DiagnosisRun) -> None:
                                        fixed=ctx.held, say=ctx.say)
     ctx.aside = list(power.aside)
     ctx.found = attributed(power, ctx.days)
-
-
-def _since_text(day: int, days: list[str]) -> str:
-    return f"from {days[day]} on" if day > 0 else ""
 
 
 def gain_band(test, boot: int = 200, seed: int = 0) -> tuple[float, float]:
