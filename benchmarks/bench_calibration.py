@@ -151,10 +151,22 @@ def compare_optimisers(problem: CalibrationProblem, budget: int, target: float, 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--smoke", action="store_true")
+    parser.add_argument("--part", choices=("twin", "bmw"), action="append",
+                        help="only this part (repeatable; default both): the 12 m twin day "
+                        "(offline, windowed, optimisers) or the BMW i3 trips")
     args = parser.parse_args()
+    parts = set(args.part or ("twin", "bmw"))
     hours = 2.5 if args.smoke else 13.5
     settings = ISOPTSettings(seed=1, iterations=4 if args.smoke else 50)
     print(f"ebus-env calibration benchmark ({'smoke' if args.smoke else 'full'})")
+    if "twin" in parts:
+        twin_part(args.smoke, hours, settings)
+    if "bmw" in parts:
+        bmw_part(args.smoke, settings)
+
+
+def twin_part(smoke: bool, hours: float, settings: ISOPTSettings) -> None:
+    """The 12 m twin day: offline against windowed tuning, and the optimisers."""
     bus = load_bus("12m")
     model = bus.build()
     model.compile(sample=True)
@@ -162,12 +174,15 @@ def main() -> None:
         cal = twin(model, bus, hours, (-2.0, 12.0), 0, folder)
         val = twin(model, bus, hours, (4.0, 16.0), 1, folder)
         print(f"\nTwin: 12 m bus, {hours:g} h SORT 2, 7 free parameters")
-        offline_vs_windowed(model, cal, val, settings, [1] if args.smoke else [1, 2, 3])
+        offline_vs_windowed(model, cal, val, settings, [1] if smoke else [1, 2, 3])
         print("\nOptimisers at the same budget on the twin")
         problem = CalibrationProblem(model, cal)
-        budget = 111 if args.smoke else 1111
-        compare_optimisers(problem, budget, 0.01, [1] if args.smoke else [1, 2, 3])
+        budget = 111 if smoke else 1111
+        compare_optimisers(problem, budget, 0.01, [1] if smoke else [1, 2, 3])
 
+
+def bmw_part(smoke: bool, settings: ISOPTSettings) -> None:
+    """The BMW i3 calibrated on B16 and validated on B03; the reserved trips run only."""
     print("\nReal data: BMW i3, calibrated on B16, validated on B03 (reserved trips: run only)")
     i3 = load_bus("bmw_i3").build()
     logs = {t: load_log(BMW / f"Trip{t}_1hz.csv", i3.dt_s, columns="bmw_i3_tum").profiles
@@ -176,7 +191,7 @@ def main() -> None:
                          "static_rcd.rcd_frac", "regen_cutoff.cutoff_speed_mps",
                          "auxiliaries.base_power_w", "rolling_resistance.rolling_coef",
                          "efficiency_map.gearbox_efficiency"]]
-    for free in car_params[:1] if args.smoke else car_params:
+    for free in car_params[:1] if smoke else car_params:
         label = "paper's seven" if free is None else "car set (7)"
         before = {t: i3.simulate(p[0]).summary()["soc_nrmse"] for t, p in logs.items()}
         result = calibrate(i3, logs["B16"], free, settings=replace(settings, seed=0),
