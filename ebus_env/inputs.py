@@ -195,14 +195,13 @@ ENV_KEYS = {"service_h": "service_h", "start_time_h": "start_time_h", "dt_s": "d
 """Env config keys (``ebus_env.envs.ebus.EnvConfig``) and the range each one is checked in."""
 
 
-def markdown_table(brief: bool = False) -> str:
-    """The table of ``docs/inputs.md``: input, unit, accepted range, what happens outside
-    (``brief``: without the reasons, as the README shows it)."""
+def markdown_table() -> str:
+    """The table of ``docs/inputs.md``: input, unit, accepted range, what happens outside and
+    why the range is what it is."""
     rows = ["| input | where | unit | accepted | outside |", "|---|---|---|---|---|"]
     for r in RANGES.values():
         outside = "error" + (f"; warning {r.usual()}" if r.usual() else "")
-        why = "" if brief else f" {r.why}"
-        rows.append(f"| {r.name} | {r.given} | {r.unit} | {r.text(unit=False)} | {outside}.{why} |")
+        rows.append(f"| {r.name} | {r.given} | {r.unit} | {r.text(unit=False)} | {outside}. {r.why} |")
     return "\n".join(rows) + "\n"
 
 

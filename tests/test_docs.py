@@ -1,5 +1,7 @@
-"""The docs hold together: every citation of docs/physics.md names a section it has, and every
-relative link in the README and the docs pages points to a file that exists."""
+"""The docs hold together: every citation of docs/physics.md names a section it has, every
+relative link in the README and the docs pages points to a file that exists and, with an
+anchor, to a heading that page has; the README stays a manual and every docs page opens with
+what a user does."""
 
 from __future__ import annotations
 
@@ -15,6 +17,12 @@ PHYSICS = ROOT / "docs" / "physics.md"
 SECTION = re.compile(r"§(\d+(?:\.\d+)?)")
 CITATION = re.compile(r"docs/physics\.md((?:[ ,]*(?:and )?§\d+(?:\.\d+)?)+)")
 LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+ANCHORED_LINK = re.compile(r"\]\(([^)#\s]*)#([^)\s]+)\)")
+
+README_MAX_LINES = 300
+# the first "## " heading of every docs page: what a user does (the command) and how to read
+# its output, before any method or results
+USER_SECTION = "## What you do"
 
 
 def physics_sections() -> set[str]:
@@ -80,3 +88,77 @@ def markdown_links() -> list[tuple[str, str]]:
 @pytest.mark.parametrize(("page", "target"), markdown_links())
 def test_relative_links_resolve(page, target):
     assert ((ROOT / page).parent / target).exists(), f"{page} links to {target}, which is missing"
+
+
+def heading_anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings: lower case, punctuation dropped, spaces to
+    hyphens, "-1", "-2" on repeats; headings inside code blocks are not headings."""
+    text = re.sub(r"^```.*?^```", "", page.read_text(encoding="utf-8"), flags=re.S | re.M)
+    seen: dict[str, int] = {}
+    anchors = set()
+    for title in re.findall(r"^#{1,6} (.+?)\s*$", text, flags=re.M):
+        slug = re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+        repeat = seen.get(slug, 0)
+        seen[slug] = repeat + 1
+        anchors.add(slug if repeat == 0 else f"{slug}-{repeat}")
+    return anchors
+
+
+def anchored_links() -> list[tuple[str, str, str]]:
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    links = set()
+    for page in pages:
+        for target, anchor in ANCHORED_LINK.findall(page.read_text(encoding="utf-8")):
+            if "://" not in target and (not target or target.endswith(".md")):
+                links.add((str(page.relative_to(ROOT)), target, anchor))
+    return sorted(links)
+
+
+def test_the_anchor_slugs_are_githubs():
+    page = ROOT / "docs" / "physics.md"
+    assert {"9-calibration", "52-internal-resistance"} <= heading_anchors(page)
+    assert "installing-pytorch-cpu-for-the-rl-extra" in heading_anchors(ROOT / "docs" / "inputs.md")
+
+
+def test_there_are_anchored_links():
+    assert len(anchored_links()) >= 50
+
+
+@pytest.mark.parametrize(("page", "target", "anchor"), anchored_links())
+def test_anchors_resolve(page, target, anchor):
+    path = (ROOT / page).parent / target if target else ROOT / page
+    assert path.exists(), f"{page} links to {target}, which is missing"
+    assert anchor in heading_anchors(path), f"{page} links to {target}#{anchor}: no such heading"
+
+
+def test_the_readme_is_a_manual():
+    """The README says what the tool does, how to install and use it, with the headline figures
+    linked to the pages that hold them; results and method live in docs/."""
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, (
+        f"README.md has {len(lines)} lines, at most {README_MAX_LINES}: move results and method "
+        "to the docs page that regenerates them and link it")
+    assert "## Headline figures" in lines
+
+
+DOCS_PAGES = sorted((ROOT / "docs").glob("*.md"))
+
+
+def test_there_are_docs_pages():
+    assert len(DOCS_PAGES) >= 10
+
+
+@pytest.mark.parametrize("page", DOCS_PAGES, ids=lambda p: p.name)
+def test_each_docs_page_opens_with_what_a_user_does(page):
+    lines = page.read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("# "), f"{page.name} opens with its title"
+    first = next((line.rstrip() for line in lines if line.startswith("## ")), None)
+    assert first == USER_SECTION, (
+        f"{page.name}: its first section is {first!r}; open with {USER_SECTION!r}: the command "
+        "a user runs and how to read its output")
+    section = lines[lines.index(USER_SECTION) + 1:]
+    section = section[:next((i for i, line in enumerate(section) if line.startswith("## ")),
+                            len(section))]
+    body = "\n".join(section)
+    assert "```" in body or "`ebus " in body or "`python -m " in body, (
+        f"{page.name}: the user section names no command")
