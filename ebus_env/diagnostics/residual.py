@@ -38,9 +38,9 @@ MIN_SAMPLES = 4  # SoC samples a window needs for a slope
 MODEL_ERROR_FRAC = 0.02
 """The calibrated model's own uncertainty on a window's battery power, as a share of it: a
 pack's capacity and OCV curve and a drivetrain's efficiencies are known to a few per cent, so
-a 300 kW charging window is uncertain by 6 kW however finely the log resolves SoC. Chosen on
-the first four days of each kind of the out-of-family bench (2 % and 3 % alike; 10 % hides
-real effects)."""
+a 300 kW charging window is uncertain by 6 kW however finely the log resolves SoC. Much more
+would hide real effects in that uncertainty (the values tried: docs/diagnostics.md, "The
+diagnosis's constants")."""
 
 
 @dataclass

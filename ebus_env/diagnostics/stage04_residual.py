@@ -26,11 +26,11 @@ if TYPE_CHECKING:
 
 WINDOW_S = 300.0
 """Default window: SoC needs minutes to rise above its quantisation. A log of the pack's
-current resolves power in seconds, but windows shorter than minutes resolve it more finely
-than two models' drivetrains and packs agree (on the first 3 days of each kind of the
-out-of-family bench, with the pack's current and voltage, 1-min windows named 8 of 21 hidden
-library effects, 5-min ones 12): such a log gets 5-min windows too, or shorter ones, down to
-:data:`MIN_CURRENT_WINDOW_S`, where that leaves fewer than :data:`MIN_WINDOWS` (a short trip)."""
+current resolves power in seconds, but within a minute two models' drivetrains, regenerative
+braking and packs differ by more than the sensors' noise, and minutes average that out: such a
+log gets 5-min windows too, or shorter ones, down to :data:`MIN_CURRENT_WINDOW_S`, where that
+leaves fewer than :data:`MIN_WINDOWS` (a short trip). The windows' effect on the verdicts is
+measured in docs/validation.md ("On logs with the pack's current and voltage")."""
 MIN_CURRENT_WINDOW_S = 60.0
 MIN_WINDOWS = 50
 START_UP_S = 120.0

@@ -36,8 +36,8 @@ MIN_HELD_OUT_FALL = 0.1
 """The fall of the held-out SoC RMSE that must hold in most resamples of the held-out blocks
 before an effect the attribution left out is named by re-calibrating the bus with it
 (:func:`run`): one more free parameter lowers the error of a day with nothing
-wrong a little too (the fall that held so reached 9 % on the validation bench's control days,
-docs/validation.md; set before they were run)."""
+wrong a little too, so the bar sits above what such a day gains (docs/diagnostics.md, "The
+diagnosis's constants")."""
 
 
 def held_out_fall(before: np.ndarray, after: np.ndarray) -> float:
