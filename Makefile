@@ -18,7 +18,7 @@ STAMP  := $(VENV)/.installed
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e ".[rl,dev,scale,bench,can]"
+	$(PIP) -e ".[rl,dev,scale,bench,can,twin]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -21,6 +21,7 @@ LAYERS = (  # lowest first; a module may import its own layer and those below
     ("ebus_env.diagnostics", "ebus_env.envs"),
     ("ebus_env.console", "ebus_env.demo"),
     ("ebus_env.study", "ebus_env.depot"),
+    ("ebus_env.twin",),
     ("ebus_env.cli",),
     ("agents",),
 )

@@ -376,7 +376,8 @@ def calibrate(model: Model, profiles: Sequence[Profile], free: Sequence[str] | N
     Offline: one iSOPT run over the whole data (the population evaluated in one batched call of
     the compiled core per phase), then a Levenberg-Marquardt polish from the ``polish_starts``
     best distinct points it found (default 4; 0 for none); the points in ``start`` (values by
-    name, the model's own for the free parameters one omits) join the initial population.
+    name, the model's own for the free parameters one omits) join the initial population
+    (windowed, the first of them warm-starts the tuning: no global search).
     ``blocks`` and ``validate_blocks`` score only some blocks of the profiles (see
     :class:`~ebus_env.calibration.problem.Blocks`); ``charge`` fits the charge counted from
     the logged pack current too (see :class:`~ebus_env.calibration.problem.CalibrationProblem`).
@@ -399,8 +400,10 @@ def calibrate(model: Model, profiles: Sequence[Profile], free: Sequence[str] | N
     if windowed:
         from ebus_env.calibration.windowed import tune_windowed
 
+        # windowed: the first point of ``start`` warm-starts every window (a bus's last fit)
         best_u, best_cost, history, evaluations, interrupted, windows = tune_windowed(
-            problem, settings, window_settings, progress)
+            problem, settings, window_settings, progress,
+            start_u=problem.points([start[0]])[0] if start else None)
         method = "iSOPT, windowed"
     else:
         seeds = problem.points([{}, *start])

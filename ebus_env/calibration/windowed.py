@@ -101,10 +101,13 @@ def window_ends(profile: Profile, settings: WindowSettings) -> list[tuple[int, s
 
 
 def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
-                  window_settings: WindowSettings | None = None, progress: Progress | None = None
+                  window_settings: WindowSettings | None = None, progress: Progress | None = None,
+                  start_u: np.ndarray | None = None
                   ) -> tuple[np.ndarray, float, History, int, bool, list[dict[str, Any]]]:
     """Windowed tuning of ``problem`` (see module docstring). Returns (best u, its cost on all
-    data, history, evaluations, interrupted, per-window log)."""
+    data, history, evaluations, interrupted, per-window log). ``start_u`` (normalised
+    parameters, e.g. the last fit of a bus whose data keep coming) warm-starts it: every
+    window, the first too, is then refined locally from it, with no global search."""
     ws = window_settings or WindowSettings()
     profiles = [d.profile for d in problem.data]
     plan = [(i, end, cat) for i, p in enumerate(profiles) for end, cat in window_ends(p, ws)]
@@ -115,7 +118,7 @@ def tune_windowed(problem: CalibrationProblem, settings: ISOPTSettings,
     log: list[dict] = []
     spent = 0
     interrupted = False
-    u: np.ndarray | None = None
+    u: np.ndarray | None = None if start_u is None else np.asarray(start_u, float).copy()
     settled = 0
     previous_fit = np.inf
     try:

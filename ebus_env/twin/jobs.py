@@ -1,0 +1,131 @@
+"""The twin's jobs: after new data, each bus's service days are tracked, its model re-fitted
+(:mod:`ebus_env.twin.refit`), a finished day diagnosed (:mod:`ebus_env.twin.service_days`)
+and its block's SoC predicted (:mod:`ebus_env.twin.forecast`).
+
+They run in a thread of the twin's process, or on Ray (``--ray [--address]``): the heavy
+pieces (a re-fit, a cross-day fit with the day's diagnosis) are then Ray tasks, each reading
+the samples it needs from the store itself (PostgreSQL, when the cluster spans machines), so
+nothing large travels. The jobs are idempotent: what a job wrote (a fit, a diagnosis) is
+keyed by bus and day or window, and a bus is looked at again whenever it gets data, so a job
+lost with a crashed process is done again by the next.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+
+log = logging.getLogger("ebus_env.twin")
+
+
+@dataclass
+class JobSettings:
+    bus_config: str = "12m"
+    dt_s: float = 0.2
+    """The models' time step [s]: 1 Hz data hold nothing finer than 0.2 s steps need."""
+    day_end_idle_min: float = 30.0
+    """A service day is finished when the bus has stood this long (layovers are shorter)."""
+    refit_every_min: float = 60.0
+    """New data [min of the bus's time] that start a windowed re-fit."""
+    predict_every_s: float = 300.0
+    """Data time [s] between two predictions of a bus while it drives."""
+    cross_days: int = 3
+    """Days the cross-day fit of the bus-to-bus parameters spans."""
+    keep_raw_days: float = 30.0
+    diagnose: bool = True
+
+
+class Jobs:
+    """Runs the jobs of buses that got data, one bus at a time per worker."""
+
+    def __init__(self, twin, settings: JobSettings | None = None, ray: bool = False,
+                 address: str | None = None, workers: int = 1):
+        self.twin, self.settings = twin, settings or JobSettings()
+        self.use_ray, self.address, self.workers = ray, address, workers
+        self._queue: queue.Queue = queue.Queue()
+        self._pending: set[str] = set()
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        self.errors: list[str] = []
+        self.done = 0
+
+    def notify(self, bus: str, late: bool = False) -> None:
+        """``bus`` has new data: look at it once the jobs before it are done."""
+        with self._lock:
+            if bus in self._pending:
+                return
+            self._pending.add(bus)
+        self._queue.put(bus)
+
+    def start(self) -> None:
+        if self.use_ray:
+            from ebus_env.twin.ray_jobs import connect
+
+            connect(self.address)
+        for i in range(self.workers):
+            th = threading.Thread(target=self._loop, name=f"twin-jobs-{i}", daemon=True)
+            th.start()
+            self._threads.append(th)
+
+    def stop(self) -> None:
+        self._stop.set()
+        for _ in self._threads:
+            self._queue.put(None)
+        for th in self._threads:
+            th.join(timeout=30)
+
+    def idle(self) -> bool:
+        with self._lock:
+            return not self._pending
+
+    def wait(self, timeout_s: float = 600.0) -> None:
+        """Block until every bus notified so far has been looked at (tests, benchmarks)."""
+        t0 = time.monotonic()
+        while not self.idle():
+            if time.monotonic() - t0 > timeout_s:
+                raise TimeoutError("the twin's jobs did not finish")
+            time.sleep(0.05)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            bus = self._queue.get()
+            if bus is None:
+                return
+            with self._lock:
+                self._pending.discard(bus)
+            try:
+                self.run_bus(bus)
+            except Exception as exc:  # a job's failure must not stop the others
+                log.exception("twin job of %s failed", bus)
+                self.errors.append(f"{bus}: {type(exc).__name__}: {exc}")
+            self.done += 1
+
+    def run_bus(self, bus: str) -> None:
+        """Everything due for ``bus``: close finished days (and fit and diagnose them), re-fit
+        its window, predict its block."""
+        from ebus_env.twin import forecast, refit, service_days
+
+        closed = service_days.close_days(self.twin, bus, self.settings)
+        for day in closed:
+            self._day_job(bus, day)
+        refit.maybe_refit(self.twin, bus, self.settings, runner=self.remote)
+        forecast.maybe_predict(self.twin, bus, self.settings)
+
+    def _day_job(self, bus: str, day: str) -> None:
+        from ebus_env.twin import refit, service_days
+
+        refit.cross_day_fit(self.twin, bus, day, self.settings, runner=self.remote)
+        if self.settings.diagnose:
+            service_days.diagnose_day(self.twin, bus, day, self.settings, runner=self.remote)
+
+    def remote(self, fn, *args):
+        """``fn(*args)`` here, or as a Ray task (its result returned either way)."""
+        if not self.use_ray:
+            return fn(*args)
+        from ebus_env.twin.ray_jobs import run_remote
+
+        return run_remote(fn, *args)

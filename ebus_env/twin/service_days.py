@@ -1,0 +1,151 @@
+"""Service days: when a bus's day is finished, and what its diagnosis says.
+
+A day is finished when the bus has stood (speed below :data:`STANDING_KMH`, or no samples at
+all: a logger asleep at the depot) for ``day_end_idle_min`` after driving: longer than any
+layover. The day runs from the end of the day before to the start of that stand plus
+``day_end_idle_min``; it is named by the UTC date of its first sample.
+
+Each finished day is diagnosed with :func:`ebus_env.diagnostics.diagnose` (the bus as its
+last fit left it, calibrated on the day, against the bus's first finished day as its normal
+day). The adapter reads only the public ``verdict``, ``status`` and ``why`` of the diagnosis.
+A day's *finding* is the named effect, or "outside library" when no library effect explains
+the missing power, or "nothing missing". A finding that differs from the bus's usual one (that
+of its first day diagnosed against its normal day) raises an alarm: a fault that starts on a
+day.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import sqlalchemy as sa
+
+from ebus_env.twin.store import alarms, diagnoses, service_days
+
+STANDING_KMH = 1.0
+NAMED = ("named", "re-calibrated", "voltage", "parameter")
+
+
+def finished_days(t: np.ndarray, speed_kmh: np.ndarray, idle_s: float) -> list[tuple[int, int]]:
+    """(first row, last row) of each finished day in samples after the last finished day:
+    driving, then standing (or silent) for ``idle_s``."""
+    out, start = [], 0
+    standing = speed_kmh < STANDING_KMH
+    moved = False
+    stand_from = None
+    for i in range(len(t)):
+        if not standing[i]:
+            moved, stand_from = True, None
+            continue
+        if stand_from is None:
+            stand_from = i
+        silent = i + 1 < len(t) and t[i + 1] - t[i] >= idle_s
+        if moved and (t[i] - t[stand_from] >= idle_s or silent):
+            out.append((start, i))
+            start, moved, stand_from = i + 1, False, None
+    return out
+
+
+def close_days(twin, bus: str, settings) -> list[str]:
+    """Close the bus's finished days; returns their names."""
+    from ebus_env.twin.refit import open_day_start
+
+    bus_id = twin.bus_id(bus)
+    start = open_day_start(twin, bus_id)
+    frame = twin.samples(bus, t_from=start + 1e-3 if np.isfinite(start) else -np.inf,
+                         columns=("speed_kmh",))
+    if len(frame) < 2:
+        return []
+    t, v = frame["t"].to_numpy(float), frame["speed_kmh"].to_numpy(float)
+    closed = []
+    for a, b in finished_days(t, v, 60.0 * settings.day_end_idle_min):
+        day = str(pd.Timestamp(t[a], unit="s").date())
+        with twin.store.engine.begin() as conn:
+            conn.execute(twin.store.insert(service_days).values(
+                bus_id=bus_id, day=day, t_start=float(t[a]), t_end=float(t[b]),
+                finished_at=twin.clock(), state="finished").on_conflict_do_nothing())
+        closed.append(day)
+    return closed
+
+
+def finding(diagnosis) -> str:
+    """The day's finding from the diagnosis's public fields."""
+    if diagnosis.verdict:
+        return diagnosis.verdict
+    if diagnosis.status == "outside library":
+        return "outside library"
+    return "nothing missing"
+
+
+def diagnose_task(day_frame: pd.DataFrame, reference_frame: pd.DataFrame | None,
+                  values: dict, bus_config: str, dt_s: float) -> dict:
+    """The diagnosis of one day (here or as a Ray task): its verdict, status, why, sentence
+    and the twin's finding."""
+    from ebus_env.config import load_bus
+    from ebus_env.diagnostics import diagnose
+    from ebus_env.twin.refit import profiles_of
+
+    bus = load_bus(bus_config)
+    if values:
+        bus = bus.overlay(_overlay(values), "the twin's last fit")
+    profiles = profiles_of(day_frame, dt_s, "day")
+    reference = profiles_of(reference_frame, dt_s, "reference") \
+        if reference_frame is not None else None
+    if not profiles:
+        return {"verdict": None, "status": "too little data", "why": "the day has no "
+                "stretch of an hour or more with SoC", "sentence": "", "finding": "no data"}
+    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
+    return {"verdict": d.verdict, "status": d.status, "why": d.why, "sentence": d.sentence,
+            "finding": finding(d)}
+
+
+def _overlay(values: dict) -> dict:
+    out: dict[str, dict] = {}
+    for name, value in values.items():
+        effect, param = name.split(".", 1)
+        out.setdefault(effect, {})[param] = float(value)
+    return {"params": out}
+
+
+def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
+    """Diagnose ``bus``'s finished ``day``; alarm when its finding differs from the bus's
+    usual one."""
+    from ebus_env.twin.refit import latest_values
+
+    bus_id = twin.bus_id(bus)
+    with twin.store.engine.connect() as conn:
+        days = conn.execute(sa.select(service_days).where(service_days.c.bus_id == bus_id)
+                            .order_by(service_days.c.day)).all()
+        # the bus's usual finding: that of its first day diagnosed against its normal day
+        first = conn.execute(sa.select(diagnoses).where(
+            diagnoses.c.bus_id == bus_id, diagnoses.c.day > days[0].day,
+            diagnoses.c.day != day).order_by(diagnoses.c.day).limit(1)).first()
+    this = next(d for d in days if d.day == day)
+    reference = days[0] if days[0].day != day else None
+    frame = twin.samples(bus, this.t_start, this.t_end)
+    ref_frame = twin.samples(bus, reference.t_start, reference.t_end) if reference else None
+    run = runner or (lambda fn, *a: fn(*a))
+    values = latest_values(twin, bus_id, before_t=this.t_start)
+    result = run(diagnose_task, frame, ref_frame, values, settings.bus_config, settings.dt_s)
+    usual = first.finding if first is not None and first.day < day else None
+    with twin.store.engine.begin() as conn:
+        conn.execute(diagnoses.delete().where(diagnoses.c.bus_id == bus_id,
+                                              diagnoses.c.day == day))
+        conn.execute(diagnoses.insert().values(
+            bus_id=bus_id, day=day, diagnosed_at=twin.clock(), verdict=result["verdict"],
+            status=result["status"], finding=result["finding"], why=result["why"],
+            sentence=result["sentence"]))
+        conn.execute(service_days.update().where(service_days.c.bus_id == bus_id,
+                                                 service_days.c.day == day)
+                     .values(state="diagnosed"))
+        if usual is not None and result["finding"] != usual:
+            what = ("no library effect explains it" if result["finding"] == "outside library"
+                    else f"the diagnosis names {result['finding']}"
+                    if result["finding"] not in ("nothing missing", "no data")
+                    else "the missing power of its usual days is gone")
+            conn.execute(alarms.insert().values(
+                bus_id=bus_id, kind="diagnosis", raised_at=twin.clock(), data_t=this.t_end,
+                day=day, lead_s=None,
+                message=f"{bus} changed on {day}: {what} (its usual days: {usual}). "
+                        f"{result['why']}"))
+    return result

@@ -1,0 +1,160 @@
+"""``ebus twin``: serve the fleet's live twin, manage its tokens, replay logs into it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+twin_app = typer.Typer(no_args_is_help=True, help="The fleet's live digital twin: serve it, "
+                                                 "give tokens, replay logs into it.")
+token_app = typer.Typer(no_args_is_help=True, help="Access tokens (stored hashed).")
+twin_app.add_typer(token_app, name="token")
+
+DbOpt = Annotated[str, typer.Option(
+    "--db", help="The store: an SQLite file (default twin.sqlite) or postgresql://user@host/db")]
+
+
+def _run(body):
+    from ebus_env.cli import _run as run
+
+    run(body)
+
+
+def _console():
+    from ebus_env.cli import _console as console
+
+    return console()
+
+
+@twin_app.command()
+def serve(
+    db: DbOpt = "twin.sqlite",
+    host: Annotated[str, typer.Option(help="Address to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port")] = 8690,
+    mqtt: Annotated[str | None, typer.Option(
+        help="Subscribe to fleet/<bus>/telemetry on this broker, host:port")] = None,
+    mqtt_user: Annotated[str | None, typer.Option(help="The twin's broker user")] = None,
+    mqtt_password_file: Annotated[Path | None, typer.Option(
+        help="File holding the twin's broker password")] = None,
+    jobs: Annotated[bool, typer.Option(
+        help="Run re-fits, diagnoses and predictions in this process (--no-jobs: ingest "
+             "only, for extra ingest processes)")] = True,
+    use_ray: Annotated[bool, typer.Option("--ray", help="Run the jobs on Ray")] = False,
+    address: Annotated[str | None, typer.Option(help="Join the Ray cluster at host:port")] = None,
+    bus_config: Annotated[str, typer.Option("--bus", help="Bus config the model of every bus "
+                                                          "starts from")] = "12m",
+    keep_raw_days: Annotated[float, typer.Option(
+        help="Keep raw 1 Hz samples this many days, then 1-min aggregates")] = 30.0,
+):
+    """Run the twin: HTTP ingest and queries, the dashboard at http://HOST:PORT/."""
+
+    def body():
+        import uvicorn
+
+        from ebus_env.twin.jobs import Jobs, JobSettings
+        from ebus_env.twin.server import create_app
+        from ebus_env.twin.store import open_store
+        from ebus_env.twin.fleet_twin import Twin
+
+        store = open_store(db)
+        twin = Twin(store)
+        runner = None
+        if jobs or use_ray:
+            runner = Jobs(twin, JobSettings(bus_config=bus_config, keep_raw_days=keep_raw_days),
+                          ray=use_ray or address is not None, address=address)
+            twin.jobs = runner
+        subscriber = None
+        if mqtt:
+            from ebus_env.twin.mqtt_bridge import Subscriber
+
+            password = mqtt_password_file.read_text().strip() if mqtt_password_file else None
+            subscriber = Subscriber(twin, mqtt, mqtt_user, password)
+        app = create_app(twin, mqtt=subscriber, jobs=runner)
+        _console().print(f"twin on http://{host}:{port}/ (store {store})")
+        uvicorn.run(app, host=host, port=port, log_level="warning")
+
+    _run(body)
+
+
+@token_app.command("create")
+def token_create(
+    fleet: Annotated[str, typer.Option(help="The fleet (a named set of buses one operator "
+                                            "owns)")],
+    bus: Annotated[str | None, typer.Option(help="A write token for this bus (created in the "
+                                                 "fleet when new); without it a read token "
+                                                 "of the fleet")] = None,
+    label: Annotated[str, typer.Option(help="What the token is for")] = "",
+    reserve_soc_pct: Annotated[float | None, typer.Option(
+        help="The bus's SoC reserve [%] for the 'will not make it' alarm (default 30)")] = None,
+    db: DbOpt = "twin.sqlite",
+):
+    """Create a token and print it (once: only its hash is stored)."""
+
+    def body():
+        from ebus_env.inputs import check
+        from ebus_env.twin.store import open_store
+        from ebus_env.twin.tokens import create
+
+        if reserve_soc_pct is not None:
+            check("soc_start_pct", reserve_soc_pct, "--reserve-soc-pct")
+        token = create(open_store(db), fleet=fleet, bus=bus, label=label,
+                       reserve_soc_pct=reserve_soc_pct)
+        print(token)
+
+    _run(body)
+
+
+@twin_app.command()
+def replay(
+    logs: Annotated[list[Path], typer.Argument(help="Logger files, streamed in this order")],
+    bus: Annotated[str, typer.Option(help="The bus the logs are of")],
+    url: Annotated[str, typer.Option(help="The twin, http://host:port")] = "http://127.0.0.1:8690",
+    token: Annotated[str | None, typer.Option(
+        help="The bus's write token (or $EBUS_TWIN_TOKEN)", envvar="EBUS_TWIN_TOKEN")] = None,
+    speed: Annotated[str, typer.Option(help="Factor of real time, e.g. 60x")] = "60x",
+    batch_s: Annotated[float, typer.Option(help="Seconds of log per batch")] = 10.0,
+    limit_min: Annotated[float | None, typer.Option(
+        help="Stop after this many minutes of wall time")] = None,
+):
+    """Stream logs to a twin as the bus's logger would (1 Hz samples in batches)."""
+
+    def body():
+        from ebus_env.errors import ConfigError
+        from ebus_env.twin.replay import parse_speed, replay as run
+
+        if not token:
+            raise ConfigError("--token: give the bus's write token (ebus twin token create "
+                              "--fleet NAME --bus ID), or set EBUS_TWIN_TOKEN")
+        counts = run(logs, bus, url, token, parse_speed(speed), batch_s,
+                     limit_s=None if limit_min is None else 60.0 * limit_min)
+        _console().print(f"{bus}: {counts['batches']} batches, {counts['samples']} samples "
+                         f"stored, {counts['duplicates']} duplicates, {counts['schedules']} "
+                         "blocks")
+
+    _run(body)
+
+
+@twin_app.command()
+def retain(
+    keep_raw_days: Annotated[float, typer.Option(help="Days of raw 1 Hz samples to keep")] = 30.0,
+    db: DbOpt = "twin.sqlite",
+):
+    """Reduce raw samples older than --keep-raw-days to 1-min aggregates (the twin does this
+    itself once an hour)."""
+
+    def body():
+        from ebus_env.twin.retention import reduce_old
+        from ebus_env.twin.store import open_store
+
+        done = reduce_old(open_store(db), keep_raw_days)
+        _console().print(f"{done['samples']} samples reduced to {done['minutes']} 1-min rows")
+
+    _run(body)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``ebus twin ...`` to ``app`` (``ebus_env.cli`` names this module in its
+    ``COMMAND_MODULES``)."""
+    app.add_typer(twin_app, name="twin")
