@@ -16,7 +16,9 @@ Each ingest is one transaction: the batch row, its new samples and the bus's new
 from __future__ import annotations
 
 import json
+import threading
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,6 +83,9 @@ class Twin:
         self.store, self.jobs, self.clock = store, jobs, clock
         self.stale_after_s = stale_after_s
         self._ids: dict[str, int] = {}
+        self.trip_cache: dict[str, tuple] = {}  # forecast's trips per bus (its live state)
+        # one SQLite writer at a time in this process: waiting here beats busy retries
+        self._write_lock = threading.Lock() if store.dialect == "sqlite" else nullcontext()
 
     # ------------------------------------------------------------------ data in
     def bus_id(self, bus: str) -> int:
@@ -100,7 +105,8 @@ class Twin:
         Returns when the batch is durable."""
         if not isinstance(frame, payload.Batch):
             frame = payload.batch(payload.from_frame(frame, self.clock()), batch_id)
-        receipt = self._write(bus, frame)
+        with self._write_lock:
+            receipt = self._write(bus, frame)
         if self.jobs is not None and receipt.stored:
             self.jobs.notify(bus, late=receipt.arrival == "late")
         return receipt
@@ -169,8 +175,8 @@ class Twin:
         if np.isfinite(t_to):
             query = query.where(samples.c.t <= float(t_to))
         with self.store.engine.connect() as conn:
-            rows = conn.execute(query.order_by(samples.c.t)).all()
-        return pd.DataFrame(rows, columns=["t", *columns])
+            rows = list(map(tuple, conn.execute(query.order_by(samples.c.t))))
+        return pd.DataFrame.from_records(rows, columns=["t", *columns], coerce_float=True)
 
     def fleet(self, fleet: str) -> list[dict]:
         """Each bus of ``fleet``: last seen, SoC now, stale or not, the latest prediction of

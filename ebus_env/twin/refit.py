@@ -40,7 +40,9 @@ HISTORY = {"static_rcd.rcd_frac": "capacity fade (RCD)",
            "auxiliaries.base_power_w": "auxiliary base load",
            "rolling_resistance.rolling_coef": "rolling resistance",
            "efficiency_map.gearbox_efficiency": "drivetrain efficiency"}
-MIN_PROFILE_S = 600.0  # segments shorter than this (a logger's blip) are left out of a fit
+MIN_PROFILE_S = 1800.0
+"""Segments shorter than this (between two gaps of the data) are left out of a fit: shorter
+than one window of the windowed tuning."""
 
 
 @lru_cache(maxsize=8)
@@ -107,14 +109,16 @@ def fit_task(frames: list[pd.DataFrame], free: tuple[str, ...], start: dict, win
         return None
     names = [n for n in (model.equivalent(f) for f in free) if n is not None]
     bounds = {k: v for k, v in nuisance_ranges(model, profiles).items() if k in names}
+    # the bus's other fitted values are held: a fit moves its own parameters only
+    fixed = {k: v for k, v in start.items() if k not in names}
     t0 = time.perf_counter()
     if windowed:
-        result = calibrate(model, profiles, names, bounds=bounds, windowed=True,
+        result = calibrate(model, profiles, names, bounds=bounds, windowed=True, fixed=fixed,
                            start=[start] if start else (), polish_starts=0,
                            settings=ISOPTSettings(seed=seed),
                            window_settings=WindowSettings(min_window_min=30.0))
     else:
-        result = calibrate(model, profiles, names, bounds=bounds,
+        result = calibrate(model, profiles, names, bounds=bounds, fixed=fixed,
                            start=[start] if start else (), polish_starts=1,
                            settings=ISOPTSettings(seed=seed, iterations=8))
     return {"values": {k: float(v) for k, v in result.values.items()},

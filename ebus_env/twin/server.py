@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import tempfile
-import threading
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -71,7 +70,6 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
     """The ASGI app of ``twin``; ``jobs`` (re-fits, diagnoses, predictions) and ``mqtt`` (a
     subscriber) start and stop with it."""
     tokens = Tokens(twin.store)
-    write_lock = threading.Lock() if twin.store.dialect == "sqlite" else None
 
     @asynccontextmanager
     async def lifespan(_app):
@@ -133,10 +131,7 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
         return b"".join(chunks)
 
     def store(bus: str, batch: payload.Batch):
-        if write_lock is None:
-            return twin.ingest(bus, batch)
-        with write_lock:  # one SQLite writer at a time: waiting here beats busy retries
-            return twin.ingest(bus, batch)
+        return twin.ingest(bus, batch)
 
     @app.get("/healthz", tags=["service"])
     def healthz():
