@@ -63,17 +63,19 @@ class Forecast:
         return asdict(self)
 
 
-def _trips_driven(twin, bus: str, bus_id: int, day: str, before_t: float) -> dict[int, list]:
+def _trips_driven(twin, bus: str, bus_id: int, day: str, before_t: float,
+                  given: Block | None = None) -> dict[int, list]:
     """The 1 Hz speed traces of the trips the bus drove (this day's before ``before_t`` and
     the ``PAST_DAYS`` days before), by direction, newest last."""
     with twin.store.engine.connect() as conn:
         rows = conn.execute(sa.select(schedules.c.day, schedules.c.block).where(
             schedules.c.bus_id == bus_id, schedules.c.day <= day)
             .order_by(schedules.c.day.desc()).limit(PAST_DAYS + 1)).all()
-    legs = []
-    for row in reversed(rows):
-        blk = read_block(json.loads(row.block))
-        legs += [leg for leg in blk.trips if leg.end_s <= before_t]
+    blocks = [read_block(json.loads(row.block)) for row in reversed(rows)]
+    if given is not None:  # a block given to predict(), stored or not
+        blocks = [b for b in blocks if b.date != given.date] + [given]
+    legs = sorted({leg for blk in blocks for leg in blk.trips if leg.end_s <= before_t},
+                  key=lambda leg: leg.start_s)
     out: dict[int, list] = {0: [], 1: []}
     if not legs:
         return out
@@ -166,7 +168,7 @@ def predict_bus(twin, bus: str, schedule: dict | None = None, band: bool = True,
     model = bus_model(settings.bus_config, settings.dt_s)
     values = latest_values(twin, bus_id, before_t=t_now)
     vec = model.param_vector(values)
-    past = _trips_driven(twin, bus, bus_id, day, t_now)
+    past = _trips_driven(twin, bus, bus_id, day, t_now, block)
     if not past[0] and not past[1]:
         raise ConfigError(f"bus '{bus}' has driven no trip of its block yet: nothing to "
                           "build the rest of the block from")

@@ -178,7 +178,7 @@ def from_records(records: list, now_s: float | None = None) -> pd.DataFrame:
         for key, value in rec.items():
             if key != "t":
                 columns.setdefault(key, [math.nan] * (i - 1)).append(_number(value, key, i))
-        for key, values in columns.items():
+        for values in columns.values():
             if len(values) < i:
                 values.append(math.nan)
     return _check(pd.DataFrame(columns), now_s)

@@ -13,6 +13,7 @@ import tempfile
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Annotated
 
 from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
@@ -66,6 +67,19 @@ FILE_BODY = {"requestBody": {"required": True, "content": {"application/octet-st
     "schema": {"type": "string", "format": "binary"}}}}}
 
 
+def grant(request: Request,
+          creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> Grant:
+    """The request's token's grant; 401 without a valid one."""
+    found = request.app.state.tokens.grant(creds.credentials if creds else None)
+    if found is None:
+        raise HTTPException(401, "no valid token: send 'Authorization: Bearer <token>' "
+                            "(ebus twin token create)", headers={"WWW-Authenticate": "Bearer"})
+    return found
+
+
+Auth = Annotated[Grant, Depends(grant)]
+
+
 def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
     """The ASGI app of ``twin``; ``jobs`` (re-fits, diagnoses, predictions) and ``mqtt`` (a
     subscriber) start and stop with it."""
@@ -85,14 +99,7 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
                   description="The live digital twin of an electric-bus fleet (docs/twin.md)",
                   lifespan=lifespan)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
-
-    def grant(creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> Grant:
-        found = tokens.grant(creds.credentials if creds else None)
-        if found is None:
-            raise HTTPException(401, "no valid token: send 'Authorization: Bearer <token>' "
-                                "(ebus twin token create)",
-                                headers={"WWW-Authenticate": "Bearer"})
-        return found
+    app.state.tokens = tokens
 
     def may_write(g: Grant, bus: str) -> None:
         if g.kind != "write" or g.bus != bus:
@@ -138,8 +145,8 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
         return {"ok": True, "time": time.time()}
 
     @app.post("/v1/buses/{bus}/samples", tags=["ingest"], openapi_extra=BATCH_BODY)
-    async def post_samples(bus: str, request: Request, batch_id: str | None = None,
-                           g: Grant = Depends(grant)):
+    async def post_samples(bus: str, request: Request, g: Auth,
+                           batch_id: str | None = None):
         """A batch of 1 Hz samples, as JSON (``BatchIn``) or CSV lines with a header. The
         answer comes once the batch is durable; it says what the batch was (stored,
         duplicate; in order, out of order, late)."""
@@ -160,8 +167,7 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
         return receipt.to_json()
 
     @app.post("/v1/buses/{bus}/files", tags=["ingest"], openapi_extra=FILE_BODY)
-    async def post_file(bus: str, request: Request, name: str = "log.csv",
-                        g: Grant = Depends(grant)):
+    async def post_file(bus: str, request: Request, g: Auth, name: str = "log.csv"):
         """A logger file (``?name=`` gives its name and so its format: .csv, .csv.gz,
         .parquet, and the CAN formats the project's log reader knows), stored as one
         batch."""
@@ -186,7 +192,7 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
         return receipt.to_json()
 
     @app.put("/v1/buses/{bus}/schedules/{day}", tags=["ingest"])
-    async def put_schedule(bus: str, day: str, request: Request, g: Grant = Depends(grant)):
+    async def put_schedule(bus: str, day: str, request: Request, g: Auth):
         """The bus's block for ``day`` (YYYY-MM-DD): its trips and the chargers it meets."""
         from ebus_env.twin.schedule import check_block
 
@@ -200,19 +206,19 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
         return {"bus": bus, "day": day, "trips": len(block["trips"])}
 
     @app.get("/v1/fleets/{fleet}/buses", tags=["query"])
-    def get_fleet(fleet: str, g: Grant = Depends(grant)):
+    def get_fleet(fleet: str, g: Auth):
         """Each bus: last seen, SoC now, live or stale, its block's predicted end, alarms."""
         may_read_fleet(g, fleet)
         return {"fleet": fleet, "now": twin.clock(), "buses": twin.fleet(fleet)}
 
     @app.get("/v1/buses/{bus}", tags=["query"])
-    def get_bus(bus: str, g: Grant = Depends(grant)):
+    def get_bus(bus: str, g: Auth):
         """The bus page's data: measured SoC, the prediction, fits, diagnoses, alarms."""
         may_read_bus(g, bus)
         return twin.bus(bus)
 
     @app.get("/v1/buses/{bus}/prediction", tags=["query"])
-    def get_prediction(bus: str, band: bool = True, g: Grant = Depends(grant)):
+    def get_prediction(bus: str, g: Auth, band: bool = True):
         """The SoC at each planned charger and at the block's end, predicted now."""
         may_read_bus(g, bus)
         try:
@@ -221,7 +227,7 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
             raise HTTPException(409, str(exc)) from None
 
     @app.get("/v1/fleets/{fleet}/energy-tomorrow", tags=["query"])
-    def get_energy(fleet: str, g: Grant = Depends(grant)):
+    def get_energy(fleet: str, g: Auth):
         """The energy each bus needs for its next block [kWh], from its fitted model."""
         from ebus_env.twin.forecast import energy_tomorrow
 

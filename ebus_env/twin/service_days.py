@@ -9,7 +9,8 @@ Each finished day is diagnosed with :func:`ebus_env.diagnostics.diagnose` (the b
 last fit left it, calibrated on the day, against the bus's first finished day as its normal
 day). The adapter reads only the public ``verdict``, ``status`` and ``why`` of the diagnosis.
 A day's *finding* is the named effect, or "outside library" when no library effect explains
-the missing power, or "nothing missing". A finding that differs from the bus's usual one (that
+the missing power (with the operating mode where it is missing, the diagnosis's
+``mode_clue``, when it names one), or "nothing missing". A finding that differs from the bus's usual one (that
 of its first day diagnosed against its normal day) raises an alarm: a fault that starts on a
 day.
 """
@@ -73,7 +74,10 @@ def finding(diagnosis) -> str:
     if diagnosis.verdict:
         return diagnosis.verdict
     if diagnosis.status == "outside library":
-        return "outside library"
+        # the mode where the power is missing tells two such days apart (a compressor that
+        # runs while the bus stands: "idle")
+        clue = getattr(diagnosis, "mode_clue", None)
+        return "outside library" + (f" ({clue})" if clue else "")
     return "nothing missing"
 
 
@@ -139,7 +143,8 @@ def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
                                                  service_days.c.day == day)
                      .values(state="diagnosed"))
         if usual is not None and result["finding"] != usual:
-            what = ("no library effect explains it" if result["finding"] == "outside library"
+            what = ("no library effect explains it" + result["finding"][15:]
+                    if result["finding"].startswith("outside library")
                     else f"the diagnosis names {result['finding']}"
                     if result["finding"] not in ("nothing missing", "no data")
                     else "the missing power of its usual days is gone")

@@ -1,7 +1,8 @@
-"""the twin's first schema: fleets, buses, tokens, batches, samples, minute aggregates, schedules, service days, fits, diagnoses, alarms, predictions
+"""The twin's first schema: fleets, buses, tokens, batches, samples, minute aggregates,
+schedules, service days, fits, diagnoses, alarms, predictions.
 
 Revision ID: 0001
-Revises: 
+Revises:
 """
 
 import sqlalchemy as sa

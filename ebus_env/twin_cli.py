@@ -53,10 +53,10 @@ def serve(
     def body():
         import uvicorn
 
+        from ebus_env.twin.fleet_twin import Twin
         from ebus_env.twin.jobs import Jobs, JobSettings
         from ebus_env.twin.server import create_app
         from ebus_env.twin.store import open_store
-        from ebus_env.twin.fleet_twin import Twin
 
         store = open_store(db)
         twin = Twin(store)
@@ -122,7 +122,8 @@ def replay(
 
     def body():
         from ebus_env.errors import ConfigError
-        from ebus_env.twin.replay import parse_speed, replay as run
+        from ebus_env.twin.replay import parse_speed
+        from ebus_env.twin.replay import replay as run
 
         if not token:
             raise ConfigError("--token: give the bus's write token (ebus twin token create "
