@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -50,6 +51,13 @@ def wait_port(port: int, limit_s: float = 60.0, proc=None) -> None:
     raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {limit_s:.0f} s")
 
 
+def _open_dir(prefix: str) -> Path:
+    """A temporary folder under /tmp that a service's own user can use."""
+    folder = Path(tempfile.mkdtemp(prefix=prefix, dir="/tmp"))
+    folder.chmod(0o777)
+    return folder
+
+
 def _pg_bin(name: str) -> str:
     return need(name, *sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"), reverse=True))
 
@@ -59,6 +67,7 @@ def postgres(tmp: Path):
     """A PostgreSQL cluster of its own; yields its URL. Run as a non-root user where the
     tests run as root (PostgreSQL refuses root)."""
     initdb, pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
+    tmp = _open_dir("twin-pg-")  # the server's user must reach it (pytest's are 0700)
     data = tmp / "pg"
     port = free_port()
     as_user: list[str] = []
@@ -70,7 +79,6 @@ def postgres(tmp: Path):
             pwd.getpwnam(user)
         except KeyError:
             subprocess.run(["useradd", "--system", "--no-create-home", user], check=True)
-        tmp.chmod(0o777)
         as_user = ["runuser", "-u", user, "--"]
     data.mkdir()
     if as_user:
@@ -92,6 +100,7 @@ def postgres(tmp: Path):
     finally:
         subprocess.run([*as_user, pg_ctl, "-D", str(data), "-m", "immediate", "-w", "stop"],
                        capture_output=True)
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 @contextmanager
@@ -102,6 +111,7 @@ def mosquitto(tmp: Path, users: dict[str, str]):
     broker = need("mosquitto", "/usr/sbin/mosquitto")
     passwd = need("mosquitto_passwd", "/usr/bin/mosquitto_passwd")
     port = free_port()
+    tmp = _open_dir("twin-mqtt-")  # mosquitto started as root runs as its own user
     pw = tmp / "passwd"
     for i, (user, password) in enumerate(users.items()):
         subprocess.run([passwd, *(["-c"] if i == 0 else []), "-b", str(pw), user, password],
@@ -115,8 +125,6 @@ def mosquitto(tmp: Path, users: dict[str, str]):
                     f"persistence_location {tmp}/\nmax_queued_messages 100000\n")
     for f in (pw, acl, conf):
         f.chmod(0o644)
-    if os.geteuid() == 0:
-        tmp.chmod(0o777)
     proc = subprocess.Popen([broker, "-c", str(conf)], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -125,6 +133,7 @@ def mosquitto(tmp: Path, users: dict[str, str]):
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=30)
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def serve(db: str, port: int, *extra: str, env: dict | None = None) -> subprocess.Popen:

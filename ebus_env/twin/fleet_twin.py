@@ -121,8 +121,8 @@ class Twin:
             new = conn.execute(self.store.insert(batches).values(
                 bus_id=bus_id, batch_id=batch.batch_id, received_at=now, n_rows=len(frame),
                 n_new=0, t_first=float(t[0]), t_last=float(t[-1]), arrival="in order")
-                .on_conflict_do_nothing())
-            if new.rowcount == 0:
+                .on_conflict_do_nothing().returning(batches.c.batch_id)).first()
+            if new is None:
                 receipt.status = "duplicate"
                 receipt.notes.append("this batch is stored already (same bus and batch id): "
                                      "nothing stored again")

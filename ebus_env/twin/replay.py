@@ -73,6 +73,7 @@ class Sender:
         self.client = httpx.Client(base_url=url.rstrip("/"), timeout=timeout_s,
                                    headers={"Authorization": f"Bearer {token}"})
         self.bus, self.give_up_s = bus, give_up_s
+        self.retries = 0  # answers lost (the twin away, a 5xx): each batch re-sent
 
     def _send(self, method: str, path: str, **kwargs) -> dict:
         import httpx
@@ -94,6 +95,7 @@ class Sender:
                                   f"{self.give_up_s:.0f} s")
             time.sleep(RETRY_S[min(attempt, len(RETRY_S) - 1)])
             attempt += 1
+            self.retries += 1
 
     def batch(self, batch_id: str, part: pd.DataFrame) -> dict:
         return self._send("POST", f"/v1/buses/{self.bus}/samples",
@@ -114,7 +116,7 @@ def replay(logs: list[Path], bus: str, url: str, token: str, speed: float = 60.0
     ``limit_s``: stop after this much wall time."""
     sender = Sender(url, bus, token)
     counts = {"batches": 0, "samples": 0, "duplicates": 0, "schedules": 0}
-    start = clock()
+    start = None
     sent_log_s = 0.0
     try:
         for log in map(Path, logs):
@@ -124,6 +126,8 @@ def replay(logs: list[Path], bus: str, url: str, token: str, speed: float = 60.0
                 counts["schedules"] += 1
             frame = log_samples(log)
             t0 = float(frame["t"].iloc[0])
+            if start is None:  # the clock starts with the first sample, not the file's read
+                start = clock()
             for part in batches_of(frame, batch_s):
                 due = start + (sent_log_s + float(part["t"].iloc[-1]) - t0) / speed
                 wait = due - clock()

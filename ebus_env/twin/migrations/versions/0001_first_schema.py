@@ -127,7 +127,7 @@ def upgrade() -> None:
     sa.Column('fleet', sa.String(length=64), nullable=True),
     sa.Column('label', sa.String(length=200), server_default='', nullable=False),
     sa.Column('created_at', sa.Float(), nullable=False),
-    sa.Column('revoked', sa.Boolean(), server_default=sa.text('0'), nullable=False),
+    sa.Column('revoked', sa.Boolean(), server_default=sa.false(), nullable=False),
     sa.PrimaryKeyConstraint('id'),
     sa.UniqueConstraint('token_hash')
     )
