@@ -1,7 +1,8 @@
 # Two commands do all set-up on a fresh machine (Python 3.11):
 #   make demo    install into .venv and run the main job on bundled data -> report/index.html
-#                a small fleet study -> report/study/report.html and a timetable (GTFS)
-#                study -> report/gtfs_study/report.html
+#                a small fleet study -> report/study/report.html, a timetable (GTFS)
+#                study -> report/gtfs_study/report.html, then replays three buses of a
+#                made-up fleet into the live twin for 3 minutes (its dashboard)
 #   make test    install into .venv and run the fast tests (the ones not marked slow)
 #   make test-all   ... and every test, the slow ones too (what CI runs)
 #   make typecheck  mypy on effects, model, envs, calibration and agents (as CI)
@@ -25,6 +26,7 @@ demo: $(STAMP)
 	$(VENV)/bin/ebus demo --out report
 	$(VENV)/bin/ebus study configs/studies/example.yaml --out report/study --resume
 	$(VENV)/bin/ebus study configs/studies/gtfs_example.yaml --out report/gtfs_study --resume
+	$(VENV)/bin/ebus twin demo --minutes 3 --db report/twin/twin.sqlite
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2 -m "not slow"

@@ -155,6 +155,62 @@ def retain(
     _run(body)
 
 
+@twin_app.command()
+def demo(
+    minutes: Annotated[float, typer.Option(help="How long to replay [min of wall time]")] = 3.0,
+    buses: Annotated[int, typer.Option(help="How many of the shipped fleet's buses")] = 3,
+    speed: Annotated[str, typer.Option(help="Factor of real time")] = "60x",
+    port: Annotated[int, typer.Option(help="TCP port of the twin")] = 8690,
+    db: DbOpt = "report/twin/twin.sqlite",
+):
+    """Serve a twin and replay a few buses of the shipped made-up fleet into it (open the
+    dashboard's link while it runs)."""
+
+    def body():
+        import threading
+        import time
+
+        import uvicorn
+
+        from ebus_env import paths
+        from ebus_env.twin.fleet_twin import Twin
+        from ebus_env.twin.jobs import Jobs
+        from ebus_env.twin.replay import parse_speed
+        from ebus_env.twin.replay import replay as run
+        from ebus_env.twin.server import create_app
+        from ebus_env.twin.store import open_store
+        from ebus_env.twin.tokens import create
+
+        fleet = paths.here_or_shipped("data/twin_fleet")
+        names = sorted(p.name for p in fleet.glob("bus-*"))[:buses]
+        store = open_store(db)
+        twin = Twin(store)
+        twin.jobs = Jobs(twin)
+        writes = {bus: create(store, fleet="demo", bus=bus) for bus in names}
+        read = create(store, fleet="demo", label="demo dashboard")
+        server = uvicorn.Server(uvicorn.Config(create_app(twin, jobs=twin.jobs),
+                                               host="127.0.0.1", port=port,
+                                               log_level="warning"))
+        threading.Thread(target=server.run, daemon=True).start()
+        while not server.started:
+            time.sleep(0.1)
+        _console().print(f"dashboard: http://127.0.0.1:{port}/?fleet=demo&token={read}")
+        factor = parse_speed(speed)
+        threads = [threading.Thread(target=run, daemon=True, args=(
+            sorted((fleet / bus).glob("*.csv.gz")), bus, f"http://127.0.0.1:{port}",
+            writes[bus], factor), kwargs={"limit_s": 60.0 * minutes}) for bus in names]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        for row in twin.fleet("demo"):
+            _console().print(f"{row['bus']}: SoC {row['soc_pct']} %, {row['alarms']} alarm(s)"
+                             f" {row['latest_alarm'] or ''}", soft_wrap=True)
+        server.should_exit = True
+
+    _run(body)
+
+
 def register(app: typer.Typer) -> None:
     """Add ``ebus twin ...`` to ``app`` (``ebus_env.cli`` names this module in its
     ``COMMAND_MODULES``)."""
