@@ -288,3 +288,71 @@ def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
     # the bus's own SoC falls over the rest of its block (no chargers): the prediction too
     assert fc.end_soc_pct < fc.soc_now_pct - 10.0
     assert abs(fc.end_soc_pct - truth_end) < 25.0  # the 12 m bus unfitted, as a sanity bound
+
+
+def _held_by_another_writer(path):
+    """An SQLite connection of another process's kind holding the write lock (BEGIN
+    IMMEDIATE) until it commits: the twin's writer waits on it."""
+    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    other.execute("BEGIN IMMEDIATE")
+    return other
+
+
+def test_batches_waiting_for_a_commit_are_committed_together_and_answered_after_it(tmp_path):
+    from ebus_env.twin import ingest as payload
+
+    store = open_store(tmp_path / "t.sqlite")
+    for i in range(6):
+        create(store, fleet="f", bus=f"b{i}")
+    twin = Twin(store)
+    other = _held_by_another_writer(tmp_path / "t.sqlite")
+    first = twin.submit("b0", payload.batch(pd.DataFrame(samples(10)), "x0"))
+    rest = [twin.submit(f"b{i}", payload.batch(pd.DataFrame(samples(10, T0 + 10 * i)), "x"))
+            for i in range(1, 6)]
+    rest.append(twin.submit("b1", payload.batch(pd.DataFrame(samples(10, T0 + 10)), "x")))
+    import time
+
+    time.sleep(0.5)
+    # nothing is answered before its commit
+    assert not first.done() and not any(f.done() for f in rest)
+    other.execute("COMMIT")
+    other.close()
+    receipts = [f.result(timeout=60) for f in [first, *rest]]
+    assert [r.status for r in receipts] == ["stored"] * 6 + ["duplicate"]  # b1 twice: once
+    # the first waited alone on the lock; the six behind it went in one transaction
+    assert (twin.writer.groups, twin.writer.batches) == (2, 7)
+    assert all(len(twin.samples(f"b{i}")) == 10 for i in range(6))
+
+
+def test_a_batch_the_database_refuses_takes_only_itself_out_of_its_group(tmp_path):
+    """A batch that slipped past the checks (a sample without a time: the key is NOT NULL)
+    fails in the database; the batches committed with it are stored, it is not, whole."""
+    from ebus_env.twin import ingest as payload
+
+    store = open_store(tmp_path / "t.sqlite")
+    for bus in ("b0", "b1", "b2"):
+        create(store, fleet="f", bus=bus)
+    twin = Twin(store)
+    other = _held_by_another_writer(tmp_path / "t.sqlite")
+    futures = [twin.submit("b0", payload.batch(pd.DataFrame(samples(5)), "lead"))]
+    bad = payload.batch(pd.DataFrame(samples(5, T0 + 100)), "bad")
+    bad.columns["t"] = np.where(np.arange(5) == 3, np.nan, bad.columns["t"])
+    futures += [twin.submit("b1", payload.batch(pd.DataFrame(samples(5, T0 + 100)), "ok")),
+                twin.submit("b2", bad),
+                twin.submit("b2", payload.batch(pd.DataFrame(samples(5, T0 + 200)), "ok"))]
+    other.execute("COMMIT")
+    other.close()
+    assert futures[0].result(timeout=60).stored == 5
+    assert futures[1].result(timeout=60).stored == 5
+    with pytest.raises(Exception, match="NOT NULL"):
+        futures[2].result(timeout=60)
+    assert futures[3].result(timeout=60).stored == 5
+    got = twin.samples("b2")
+    assert got["t"].tolist() == [T0 + 200 + i for i in range(5)]  # none of the bad batch
+    with store.engine.connect() as conn:
+        import sqlalchemy as sa
+
+        from ebus_env.twin.store import batches
+
+        ids = sorted(conn.execute(sa.select(batches.c.batch_id)).scalars())
+    assert ids == ["lead", "ok", "ok"]

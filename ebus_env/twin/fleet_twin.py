@@ -1,25 +1,14 @@
-"""The twin of a fleet: :class:`Twin` takes samples in, keeps them durable, and (through its
-:class:`~ebus_env.twin.jobs.Jobs`) re-fits each bus's model, diagnoses finished service days
-and predicts the SoC along each bus's block.
-
-Each ingest is one transaction: the batch row, its new samples and the bus's newest sample
-(for the fleet page) commit together or not at all. What a batch was is said in its receipt:
-
-* ``duplicate``: its ``(bus, batch_id)`` is stored already; nothing is stored again;
-* ``out of order``: it starts before the newest sample stored for the bus; stored;
-* ``late``: it starts within a service day that the twin has closed already; stored, and
-  the day is diagnosed again with it;
-* ``rows_already_stored``: samples at times the bus has a sample for already (from another
-  batch); the first one stored is kept, and the receipt counts them.
+"""The twin of a fleet: :class:`Twin` takes samples in, keeps them durable (its one writer
+commits the batches of all buses in groups, :mod:`ebus_env.twin.group_commit`), and (through
+its :class:`~ebus_env.twin.jobs.Jobs`) re-fits each bus's model, diagnoses finished service
+days and predicts the SoC along each bus's block.
 """
 
 from __future__ import annotations
 
 import json
-import threading
 import time
-from contextlib import nullcontext
-from dataclasses import dataclass, field
+from concurrent.futures import Future
 
 import numpy as np
 import pandas as pd
@@ -27,39 +16,21 @@ import sqlalchemy as sa
 
 from ebus_env.errors import ConfigError
 from ebus_env.twin import ingest as payload
+from ebus_env.twin.group_commit import GroupWriter, Receipt
 from ebus_env.twin.store import (
     SAMPLE_COLUMNS,
     Store,
     alarms,
-    batches,
     buses,
     diagnoses,
     fits,
     predictions,
     samples,
-    service_days,
 )
 
 STALE_AFTER_S = 120.0
 """A bus that has sent nothing for this long (wall clock) is shown as stale: twelve 10-s
 batches missed."""
-
-
-@dataclass
-class Receipt:
-    """What the twin did with one batch (the HTTP answer's body)."""
-
-    bus: str
-    batch_id: str
-    rows: int
-    stored: int
-    status: str  # "stored" or "duplicate"
-    arrival: str  # "in order", "out of order", "late"
-    rows_already_stored: int = 0
-    notes: list[str] = field(default_factory=list)
-
-    def to_json(self) -> dict:
-        return dict(self.__dict__)
 
 
 class Twin:
@@ -84,8 +55,7 @@ class Twin:
         self.stale_after_s = stale_after_s
         self._ids: dict[str, int] = {}
         self.trip_cache: dict[str, tuple] = {}  # forecast's trips per bus (its live state)
-        # one SQLite writer at a time in this process: waiting here beats busy retries
-        self._write_lock = threading.Lock() if store.dialect == "sqlite" else nullcontext()
+        self.writer = GroupWriter(store, clock, self._committed)
 
     # ------------------------------------------------------------------ data in
     def bus_id(self, bus: str) -> int:
@@ -102,67 +72,26 @@ class Twin:
                batch_id: str | None = None) -> Receipt:
         """Store a batch of ``bus``'s samples (a DataFrame with ``t`` or ``timestamp`` and
         canonical columns, checked here, or a checked :class:`~ebus_env.twin.ingest.Batch`).
-        Returns when the batch is durable."""
+        Returns its :class:`~ebus_env.twin.group_commit.Receipt` once the batch is durable."""
+        return self.submit(bus, frame, batch_id).result()
+
+    def submit(self, bus: str, frame: pd.DataFrame | payload.Batch,
+               batch_id: str | None = None) -> Future:
+        """:meth:`ingest` without waiting: a future of the receipt, resolved once the batch
+        is durable (the server and the MQTT subscriber answer from it)."""
         if not isinstance(frame, payload.Batch):
             frame = payload.batch(payload.from_frame(frame, self.clock()), batch_id)
-        with self._write_lock:
-            receipt = self._write(bus, frame)
-        if self.jobs is not None and receipt.stored:
-            self.jobs.notify(bus, late=receipt.arrival == "late")
-        return receipt
+        return self.writer.submit(bus, self.bus_id(bus), frame)
 
-    def _write(self, bus: str, batch: payload.Batch) -> Receipt:
-        bus_id = self.bus_id(bus)
-        frame = batch.frame
-        t = frame["t"].to_numpy(float)
-        now = self.clock()
-        receipt = Receipt(bus, batch.batch_id, len(frame), 0, "stored", "in order")
-        with self.store.engine.begin() as conn:
-            new = conn.execute(self.store.insert(batches).values(
-                bus_id=bus_id, batch_id=batch.batch_id, received_at=now, n_rows=len(frame),
-                n_new=0, t_first=float(t[0]), t_last=float(t[-1]), arrival="in order")
-                .on_conflict_do_nothing().returning(batches.c.batch_id)).first()
-            if new is None:
-                receipt.status = "duplicate"
-                receipt.notes.append("this batch is stored already (same bus and batch id): "
-                                     "nothing stored again")
-                return receipt
-            last_t = conn.execute(sa.select(buses.c.last_t).where(buses.c.id == bus_id)
-                                  .with_for_update()).scalar()
-            closed = conn.execute(sa.select(sa.func.max(service_days.c.t_end))
-                                  .where(service_days.c.bus_id == bus_id)).scalar()
-            if closed is not None and t[0] <= closed:
-                receipt.arrival = "late"
-                receipt.notes.append("late: it falls in a service day the twin has closed; "
-                                     "stored, and that day is diagnosed again")
-            elif last_t is not None and t[0] <= last_t:
-                receipt.arrival = "out of order"
-                receipt.notes.append(f"out of order: it starts {last_t - t[0]:.0f} s before "
-                                     "the newest sample stored; stored in its place by time")
-            have = set(conn.execute(sa.select(samples.c.t).where(
-                samples.c.bus_id == bus_id, samples.c.t >= float(t[0]),
-                samples.c.t <= float(t[-1]))).scalars())
-            keep = ~np.isin(t, np.fromiter(have, float, len(have))) if have else \
-                np.ones(len(t), bool)
-            receipt.rows_already_stored = int((~keep).sum())
-            if receipt.rows_already_stored:
-                receipt.notes.append(f"{receipt.rows_already_stored} sample(s) at times the "
-                                     "bus has samples for already: the first stored is kept")
-            rows = _rows(frame[keep], bus_id, batch.batch_id)
-            if rows:
-                conn.execute(self.store.insert(samples).on_conflict_do_nothing(), rows)
-            receipt.stored = len(rows)
-            conn.execute(batches.update().where(batches.c.bus_id == bus_id,
-                                                batches.c.batch_id == batch.batch_id)
-                         .values(n_new=len(rows), arrival=receipt.arrival))
-            if rows and (last_t is None or t[-1] > last_t):
-                newest = frame.iloc[-1]
-                conn.execute(buses.update().where(buses.c.id == bus_id).values(
-                    last_t=float(t[-1]), last_soc_pct=_float(newest.get("soc_pct")),
-                    last_speed_kmh=float(newest["speed_kmh"]), seen_at=now))
-            else:
-                conn.execute(buses.update().where(buses.c.id == bus_id).values(seen_at=now))
-        return receipt
+    def _committed(self, receipts: list[Receipt]) -> None:
+        if self.jobs is not None:
+            for r in receipts:
+                if r.stored:
+                    self.jobs.notify(r.bus, late=r.arrival == "late")
+
+    def close(self) -> None:
+        """Write what is queued and stop the writer."""
+        self.writer.close()
 
     # ------------------------------------------------------------------ data out
     def samples(self, bus: str, t_from: float = -np.inf, t_to: float = np.inf,
@@ -257,20 +186,3 @@ class Twin:
         return self.bus(bus)["alarms"]
 
 
-def _float(x) -> float | None:
-    return None if x is None or pd.isna(x) else float(x)
-
-
-def _rows(frame: pd.DataFrame, bus_id: int, batch_id: str) -> list[dict]:
-    """Sample rows for an executemany insert: every sample column present (None where the
-    sample has none), so all rows share one statement."""
-    out = {"bus_id": np.full(len(frame), bus_id), "batch_id": [batch_id] * len(frame),
-           "t": frame["t"].to_numpy(float)}
-    for col in SAMPLE_COLUMNS:
-        out[col] = frame[col].to_numpy(float) if col in frame.columns else \
-            np.full(len(frame), np.nan)
-    table = pd.DataFrame(out).astype(object)
-    table = table.where(pd.notna(table), None)
-    return [{k: (v if v is None or isinstance(v, str) else
-                 int(v) if k == "bus_id" else float(v)) for k, v in row.items()}
-            for row in table.to_dict("records")]

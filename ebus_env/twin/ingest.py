@@ -58,17 +58,25 @@ class PayloadError(EbusError, ValueError):
         return {"error": str(self), "field": self.field, "row": self.row}
 
 
+Columns = dict[str, np.ndarray]
+"""Checked samples: ``t`` and the canonical columns present, float arrays of one length."""
+
+
 @dataclass
 class Batch:
-    """A checked batch: ``frame`` has ``t`` and the canonical columns, one row per sample, in
-    time order; ``batch_id`` is the logger's, or the content's hash."""
+    """A checked batch: ``columns`` holds ``t`` and the canonical columns, one value per
+    sample, in time order; ``batch_id`` is the logger's, or the content's hash."""
 
-    frame: pd.DataFrame
+    columns: Columns
     batch_id: str
 
     @property
     def n_rows(self) -> int:
-        return len(self.frame)
+        return len(self.columns["t"])
+
+    @property
+    def frame(self) -> pd.DataFrame:
+        return pd.DataFrame(self.columns)
 
 
 def _number(value, field: str, row: int) -> float:
@@ -109,8 +117,8 @@ def parse_time(value, row: int) -> float:
     return x
 
 
-def _check(frame: pd.DataFrame, now_s: float | None) -> pd.DataFrame:
-    t = frame["t"].to_numpy(float)
+def _check(columns: Columns, now_s: float | None) -> Columns:
+    t = columns["t"]
     if len(t) == 0:
         raise PayloadError("the batch has no samples", "samples")
     early = np.flatnonzero(t < EARLIEST_T)
@@ -129,10 +137,9 @@ def _check(frame: pd.DataFrame, now_s: float | None) -> pd.DataFrame:
         raise PayloadError(f"time {t[r - 1]:.3f} does not follow row {r - 1}'s "
                            f"({t[r - 2]:.3f}): samples of a batch go in time order, each "
                            "once", "t", r)
-    for col in frame.columns:
+    for col, values in columns.items():
         if col == "t":
             continue
-        values = frame[col].to_numpy(float)
         if col == "speed_kmh" and np.isnan(values).any():
             raise PayloadError("every sample needs a speed", col,
                                int(np.flatnonzero(np.isnan(values))[0]) + 1)
@@ -148,7 +155,7 @@ def _check(frame: pd.DataFrame, now_s: float | None) -> pd.DataFrame:
         if bad.size:
             raise PayloadError(f"{values[bad[0]]:g} {rng.unit} is outside {rng.text()}: "
                                f"{rng.why}", col, int(bad[0]) + 1)
-    return frame
+    return columns
 
 
 def _known(field: str, row: int | None) -> None:
@@ -161,6 +168,11 @@ def _known(field: str, row: int | None) -> None:
 
 def from_records(records: list, now_s: float | None = None) -> pd.DataFrame:
     """Samples as a list of ``{"t": ..., "speed_kmh": ..., ...}`` objects, checked."""
+    return pd.DataFrame(records_columns(records, now_s))
+
+
+def records_columns(records: list, now_s: float | None = None) -> Columns:
+    """:func:`from_records` as :data:`Columns` (no DataFrame: the ingest's hot path)."""
     if not isinstance(records, list):
         raise PayloadError("give the samples as a list of objects", "samples")
     if len(records) > MAX_ROWS:
@@ -181,10 +193,10 @@ def from_records(records: list, now_s: float | None = None) -> pd.DataFrame:
         for values in columns.values():
             if len(values) < i:
                 values.append(math.nan)
-    return _check(pd.DataFrame(columns), now_s)
+    return _check({k: np.asarray(v, float) for k, v in columns.items()}, now_s)
 
 
-def from_csv(text: str, now_s: float | None = None) -> pd.DataFrame:
+def csv_columns(text: str, now_s: float | None = None) -> Columns:
     """Samples as CSV lines with a header (``t,speed_kmh,soc_pct,...``), checked."""
     reader = csv.reader(io.StringIO(text))
     try:
@@ -209,11 +221,11 @@ def from_csv(text: str, now_s: float | None = None) -> pd.DataFrame:
         if len(records) > MAX_ROWS:
             raise PayloadError(f"more than {MAX_ROWS} samples in one batch: split the batch",
                                "samples", status=413)
-    return from_records(records, now_s)
+    return records_columns(records, now_s)
 
 
-def from_json(body: bytes | str | dict, now_s: float | None = None) -> tuple[pd.DataFrame,
-                                                                           str | None]:
+def json_columns(body: bytes | str | dict, now_s: float | None = None) -> tuple[Columns,
+                                                                              str | None]:
     """``{"batch_id": ..., "samples": [...]}`` (or a bare list of samples): the checked
     samples and the logger's batch id (None when it gives none)."""
     if isinstance(body, (bytes, str)):
@@ -222,7 +234,7 @@ def from_json(body: bytes | str | dict, now_s: float | None = None) -> tuple[pd.
         except (ValueError, UnicodeDecodeError) as exc:
             raise PayloadError(f"not JSON ({exc})") from None
     if isinstance(body, list):
-        return from_records(body, now_s), None
+        return records_columns(body, now_s), None
     if not isinstance(body, dict):
         raise PayloadError("give an object {\"batch_id\": ..., \"samples\": [...]}")
     extra = set(body) - {"batch_id", "samples"}
@@ -233,19 +245,32 @@ def from_json(body: bytes | str | dict, now_s: float | None = None) -> tuple[pd.
     if batch_id is not None and (not isinstance(batch_id, (str, int)) or
                                  not 0 < len(str(batch_id)) <= 128):
         raise PayloadError("a batch id is a string of 1 to 128 characters", "batch_id")
-    return from_records(body.get("samples"), now_s), None if batch_id is None else str(batch_id)
+    return records_columns(body.get("samples"), now_s), \
+        None if batch_id is None else str(batch_id)
 
 
-def content_id(frame: pd.DataFrame) -> str:
+def parse_body(body: bytes, content_type: str, now_s: float | None = None) -> tuple[
+        Columns, str | None]:
+    """A batch's body (``application/json`` or ``text/csv``), checked, and the batch id the
+    JSON gives (None: none given)."""
+    if content_type == "text/csv":
+        return csv_columns(body.decode("utf-8", errors="replace"), now_s), None
+    return json_columns(body, now_s)
+
+
+def content_id(columns: Columns) -> str:
     """A batch id from the samples themselves: the same samples sent twice get the same id."""
-    digest = hashlib.sha256(pd.util.hash_pandas_object(
-        frame[sorted(frame.columns)], index=False).to_numpy().tobytes())
-    digest.update(",".join(sorted(frame.columns)).encode())
+    digest = hashlib.sha256(",".join(sorted(columns)).encode())
+    for name in sorted(columns):
+        digest.update(np.ascontiguousarray(columns[name], float).tobytes())
     return "sha256:" + digest.hexdigest()[:40]
 
 
-def batch(frame: pd.DataFrame, batch_id: str | None) -> Batch:
-    return Batch(frame, batch_id or content_id(frame))
+def batch(samples: pd.DataFrame | Columns, batch_id: str | None) -> Batch:
+    """A :class:`Batch` of checked samples (a DataFrame or :data:`Columns`)."""
+    if isinstance(samples, pd.DataFrame):
+        samples = {c: samples[c].to_numpy(float) for c in samples.columns}
+    return Batch(samples, batch_id or content_id(samples))
 
 
 def from_frame(frame: pd.DataFrame, now_s: float | None = None) -> pd.DataFrame:

@@ -58,27 +58,36 @@ def revoke(store: Store, token: str) -> bool:
 
 
 class Tokens:
-    """Looks tokens up by their hash, with a short cache (a revoked token stops working
-    within ``ttl_s``)."""
+    """Looks tokens up by their hash, with a cache: a revoked token stops working within
+    ``ttl_s`` (a logger sends every 10 s: a shorter time would send most batches to the
+    database for their token); an unknown token is asked again after ``unknown_ttl_s`` (one
+    created meanwhile works)."""
 
-    def __init__(self, store: Store, ttl_s: float = 10.0):
-        self.store, self.ttl_s = store, ttl_s
+    def __init__(self, store: Store, ttl_s: float = 60.0, unknown_ttl_s: float = 5.0):
+        self.store, self.ttl_s, self.unknown_ttl_s = store, ttl_s, unknown_ttl_s
         self._cache: dict[str, tuple[float, Grant | None]] = {}
 
-    def grant(self, token: str | None) -> Grant | None:
+    def cached(self, token: str | None) -> tuple[bool, Grant | None]:
+        """(whether the cache knows ``token``, its grant), without the database."""
         if not token:
-            return None
+            return True, None
+        hit = self._cache.get(token_hash(token))
+        if hit is None:
+            return False, None
+        age = time.monotonic() - hit[0]
+        return age < (self.ttl_s if hit[1] is not None else self.unknown_ttl_s), hit[1]
+
+    def grant(self, token: str | None) -> Grant | None:
+        known, grant = self.cached(token)
+        if known:
+            return grant
         key = token_hash(token)
-        hit = self._cache.get(key)
-        now = time.monotonic()
-        if hit and now - hit[0] < self.ttl_s:
-            return hit[1]
         with self.store.engine.connect() as conn:
             row = conn.execute(sa.select(tokens.c.kind, tokens.c.bus, tokens.c.fleet,
                                          tokens.c.revoked)
                                .where(tokens.c.token_hash == key)).first()
         grant = None if row is None or row.revoked else Grant(row.kind, row.bus, row.fleet)
-        self._cache[key] = (now, grant)
+        self._cache[key] = (time.monotonic(), grant)
         return grant
 
     def fleet_of(self, bus: str) -> str | None:
