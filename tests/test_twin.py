@@ -18,9 +18,9 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from ebus_env import paths  # noqa: E402
 from ebus_env.twin import Twin, open_store  # noqa: E402
+from ebus_env.twin.closed_days import day_rule, finished_days  # noqa: E402
 from ebus_env.twin.ingest import from_log_file  # noqa: E402
 from ebus_env.twin.server import create_app  # noqa: E402
-from ebus_env.twin.service_days import finished_days  # noqa: E402
 from ebus_env.twin.tokens import create  # noqa: E402
 
 T0 = 1_746_424_800.0  # 2025-05-05 06:00 UTC
@@ -87,8 +87,8 @@ def test_a_batch_is_stored_once_and_each_kind_of_arrival_is_said(service):
 
 def test_a_late_batch_falls_in_a_closed_day_and_says_so(service):
     twin, client, tok, _, _ = service
+    from ebus_env.twin.closed_days import close_days
     from ebus_env.twin.jobs import JobSettings
-    from ebus_env.twin.service_days import close_days
 
     drive = samples(600, T0)
     stand = [{"t": T0 + 600 + i, "speed_kmh": 0.0, "soc_pct": 80.0} for i in range(0, 2400, 10)]
@@ -222,13 +222,16 @@ def test_fuzzed_payloads_are_stored_whole_or_refused_whole(service, rows):
 
 
 def test_finished_days_need_driving_then_a_long_stand_or_silence():
+    rule = day_rule(30.0)  # a 30-min stay ends a day; 10 min of margin either side
     t = np.arange(0, 4000.0)
     v = np.where(t < 1000, 20.0, 0.0)
-    assert finished_days(t, v, 1800.0) == [(0, 2800)]
-    assert finished_days(t[:2500], v[:2500], 1800.0) == []  # a layover, not the night
+    (start, end), = finished_days(t, v, rule)
+    assert start == 0.0 and end == pytest.approx(999.0 + 600.0)
+    assert finished_days(t[:2500], v[:2500], rule) == []  # a layover, not the night
     gap = np.r_[np.arange(0, 1000.0), 9000.0 + np.arange(0, 100.0)]
     speed = np.r_[np.full(999, 10.0), 0.0, np.full(100, 10.0)]
-    assert finished_days(gap, speed, 1800.0) == [(0, 999)]  # asleep at the depot
+    (start, end), = finished_days(gap, speed, rule)  # asleep at the depot; the next day open
+    assert start == 0.0 and end == pytest.approx(998.0 + 600.0)
 
 
 def test_retention_reduces_old_samples_to_minutes(service):

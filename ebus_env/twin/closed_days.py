@@ -1,18 +1,20 @@
-"""Service days: when a bus's day is finished, and what its diagnosis says.
+"""Closed service days: when a bus's day is finished, and what its diagnosis says.
 
-A day is finished when the bus has stood (speed below :data:`STANDING_KMH`, or no samples at
-all: a logger asleep at the depot) for ``day_end_idle_min`` after driving: longer than any
-layover. The day runs from the end of the day before to the start of that stand plus
-``day_end_idle_min``; it is named by the UTC date of its first sample.
+A bus's samples are cut into service days by the depot's rule
+(:func:`ebus_env.depot.service_days.service_days`: the runs between stays of at least
+``stay_h`` without moving, or without samples: a logger asleep at the depot) with the twin's
+``day_end_idle_min`` as the stay: longer than any layover. A day is *finished* once a later day
+has begun, or once the bus has stood ``day_end_idle_min`` after its last move with its logger
+on. It is named by the UTC date of its first sample.
 
 Each finished day is diagnosed with :func:`ebus_env.diagnostics.diagnose` (the bus as its
 last fit left it, calibrated on the day, against the bus's first finished day as its normal
 day). The adapter reads only the public ``verdict``, ``status`` and ``why`` of the diagnosis.
 A day's *finding* is the named effect, or "outside library" when no library effect explains
 the missing power (with the operating mode where it is missing, the diagnosis's
-``mode_clue``, when it names one), or "nothing missing". A finding that differs from the bus's usual one (that
-of its first day diagnosed against its normal day) raises an alarm: a fault that starts on a
-day.
+``mode_clue``, when it names one), or "nothing missing". A finding that differs from the bus's
+usual one (that of its first day diagnosed against its normal day) raises an alarm: a fault
+that starts on a day.
 """
 
 from __future__ import annotations
@@ -21,30 +23,31 @@ import numpy as np
 import pandas as pd
 import sqlalchemy as sa
 
-from ebus_env.twin.store import alarms, diagnoses, service_days
+from ebus_env.depot.service_days import DayRule, service_days
+from ebus_env.twin.store import alarms, diagnoses
+from ebus_env.twin.store import service_days as days_table
 
-STANDING_KMH = 1.0
-NAMED = ("named", "re-calibrated", "voltage", "parameter")
+
+def day_rule(day_end_idle_min: float) -> DayRule:
+    """The depot's day rule with the twin's stay: a day keeps a third of it as its margin
+    before the first and after the last move."""
+    return DayRule(stay_h=day_end_idle_min / 60.0, margin_min=day_end_idle_min / 3.0,
+                   min_day_h=0.0)
 
 
-def finished_days(t: np.ndarray, speed_kmh: np.ndarray, idle_s: float) -> list[tuple[int, int]]:
-    """(first row, last row) of each finished day in samples after the last finished day:
-    driving, then standing (or silent) for ``idle_s``."""
-    out, start = [], 0
-    standing = speed_kmh < STANDING_KMH
-    moved = False
-    stand_from = None
-    for i in range(len(t)):
-        if not standing[i]:
-            moved, stand_from = True, None
-            continue
-        if stand_from is None:
-            stand_from = i
-        silent = i + 1 < len(t) and t[i + 1] - t[i] >= idle_s
-        if moved and (t[i] - t[stand_from] >= idle_s or silent):
-            out.append((start, i))
-            start, moved, stand_from = i + 1, False, None
-    return out
+def finished_days(t: np.ndarray, speed_kmh: np.ndarray, rule: DayRule
+                  ) -> list[tuple[float, float]]:
+    """(start, end) [s] of each finished day in time-ordered samples (after the last
+    finished day): its stay has begun and either a later day has too, or the samples reach
+    ``stay_h`` past its last move (see the module docstring)."""
+    days = service_days(t, speed_kmh, rule)
+    margin = 60.0 * rule.margin_min
+    done = []
+    for k, (a, b) in enumerate(days):
+        last_move = b - margin
+        if k + 1 < len(days) or t[-1] - last_move >= 3600.0 * rule.stay_h:
+            done.append((max(a, float(t[0])), min(b, float(t[-1]))))
+    return done
 
 
 def close_days(twin, bus: str, settings) -> list[str]:
@@ -59,12 +62,12 @@ def close_days(twin, bus: str, settings) -> list[str]:
         return []
     t, v = frame["t"].to_numpy(float), frame["speed_kmh"].to_numpy(float)
     closed = []
-    for a, b in finished_days(t, v, 60.0 * settings.day_end_idle_min):
-        day = str(pd.Timestamp(t[a], unit="s").date())
+    for a, b in finished_days(t, v, day_rule(settings.day_end_idle_min)):
+        day = str(pd.Timestamp(a, unit="s").date())
         with twin.store.engine.begin() as conn:
-            conn.execute(twin.store.insert(service_days).values(
-                bus_id=bus_id, day=day, t_start=float(t[a]), t_end=float(t[b]),
-                finished_at=twin.clock(), state="finished").on_conflict_do_nothing())
+            conn.execute(twin.store.insert(days_table).values(
+                bus_id=bus_id, day=day, t_start=a, t_end=b, finished_at=twin.clock(),
+                state="finished").on_conflict_do_nothing())
         closed.append(day)
     return closed
 
@@ -118,8 +121,8 @@ def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
 
     bus_id = twin.bus_id(bus)
     with twin.store.engine.connect() as conn:
-        days = conn.execute(sa.select(service_days).where(service_days.c.bus_id == bus_id)
-                            .order_by(service_days.c.day)).all()
+        days = conn.execute(sa.select(days_table).where(days_table.c.bus_id == bus_id)
+                            .order_by(days_table.c.day)).all()
         # the bus's usual finding: that of its first day diagnosed against its normal day
         first = conn.execute(sa.select(diagnoses).where(
             diagnoses.c.bus_id == bus_id, diagnoses.c.day > days[0].day,
@@ -139,8 +142,8 @@ def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
             bus_id=bus_id, day=day, diagnosed_at=twin.clock(), verdict=result["verdict"],
             status=result["status"], finding=result["finding"], why=result["why"],
             sentence=result["sentence"]))
-        conn.execute(service_days.update().where(service_days.c.bus_id == bus_id,
-                                                 service_days.c.day == day)
+        conn.execute(days_table.update().where(days_table.c.bus_id == bus_id,
+                                                 days_table.c.day == day)
                      .values(state="diagnosed"))
         if usual is not None and result["finding"] != usual:
             what = ("no library effect explains it" + result["finding"][15:]
