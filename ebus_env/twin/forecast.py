@@ -29,14 +29,17 @@ import pandas as pd
 import sqlalchemy as sa
 
 from ebus_env.errors import ConfigError
-from ebus_env.twin.schedule import Block, read_block
+from ebus_env.twin.schedule import DayBlock, read_block, read_stored, trip_key
 from ebus_env.twin.store import alarms, buses, predictions, schedules
 
 MEMBERS = 12
-MODEL_ERROR_FRAC = 0.08
+MODEL_ERROR = 0.08
+"""The model's error [1 sigma] per SoC point the battery still moves (set by
+``python -m benchmarks.bench_twin`` on buses it does not report on)."""
 Z90 = 1.645
 PAST_DAYS = 3  # days of past trips the band draws from
-KEEP_TRIPS = 8  # the newest trips of each direction it keeps
+KEEP_TRIPS = 8  # the newest trips of each kind it keeps
+DRAW_FROM = 4  # a band member drives one of the trips this many nearest in duration
 
 
 @dataclass
@@ -58,90 +61,203 @@ class Forecast:
     below_reserve_t: float | None = None
     trips_left: int = 0
     fitted: bool = False
+    from_schedule: int = 0  # trips ahead driven as the block's timetable (none of the bus's)
+    band_parts: dict | None = None  # at the block's end: the members' 5-95 %, SoC moved
 
     def to_json(self) -> dict:
         return asdict(self)
 
 
-def _trips_driven(twin, bus: str, bus_id: int, day: str, before_t: float,
-                  given: Block | None = None) -> dict[int, list]:
-    """The 1 Hz speed traces of the trips the bus drove (this day's before ``before_t`` and
-    the ``PAST_DAYS`` days before), by direction, newest last."""
+def stored_block(twin, bus_id: int, day: str) -> DayBlock | None:
+    """The bus's block stored for ``day``, read (None: none stored)."""
+    text = twin.store.schedule_text(bus_id, day)
+    return None if text is None else read_stored(text, day)
+
+
+@dataclass
+class History:
+    """What the bus's own recent days tell its forecast: the traces of the trips it drove
+    (1 Hz rows of speed [m/s] and door open [0/1], by :func:`trip_key`, newest last) and how
+    much of a layover at a charger its sessions lose to connecting and disconnecting
+    (``plug_in_s`` after it arrives, ``plug_out_s`` before it leaves; medians)."""
+
+    trips: dict[tuple, list[np.ndarray]]
+    plug_in_s: float = 0.0
+    plug_out_s: float = 0.0
+
+    def nearest(self, trip, duration_s: float, k: int = 1) -> list[np.ndarray]:
+        """The ``k`` traces of trips like ``trip`` whose duration was nearest
+        ``duration_s`` (a trip's time says its traffic: its stops and speeds), the newest
+        first among equals."""
+        pool = self.trips.get(trip_key(trip), [])
+        order = sorted(range(len(pool)), key=lambda i: (abs(pool[i].shape[1] - duration_s),
+                                                        -i))
+        return [pool[i] for i in order[:k]]
+
+    def like(self, trip, duration_s: float) -> np.ndarray | None:
+        found = self.nearest(trip, duration_s)
+        return found[0] if found else None
+
+    def draw(self, trip, duration_s: float, rng) -> np.ndarray | None:
+        """One of the :data:`DRAW_FROM` traces nearest in duration, at random."""
+        found = self.nearest(trip, duration_s, DRAW_FROM)
+        return found[int(rng.integers(len(found)))] if found else None
+
+
+def history(twin, bus: str, bus_id: int, day: str, before_t: float,
+            given: DayBlock | None = None) -> History:
+    """The bus's :class:`History` from its blocks of this day (what it drove before
+    ``before_t``) and the ``PAST_DAYS`` days before; kept per bus until another trip ends
+    (the live state a bus costs: a few kinds x 8 trips x ~3000 s x 8 bytes, about 0.5 MB)."""
     with twin.store.engine.connect() as conn:
         rows = conn.execute(sa.select(schedules.c.day, schedules.c.block).where(
             schedules.c.bus_id == bus_id, schedules.c.day <= day)
             .order_by(schedules.c.day.desc()).limit(PAST_DAYS + 1)).all()
-    blocks = [read_block(json.loads(row.block)) for row in reversed(rows)]
+    blocks = [read_stored(row.block, row.day) for row in reversed(rows)]
     if given is not None:  # a block given to predict(), stored or not
-        blocks = [b for b in blocks if b.date != given.date] + [given]
-    legs = sorted({leg for blk in blocks for leg in blk.trips if leg.end_s <= before_t},
-                  key=lambda leg: leg.start_s)
-    out: dict[int, list] = {0: [], 1: []}
-    if not legs:
-        return out
-    # the newest KEEP_TRIPS of each direction; kept per bus until another trip ends (the
-    # live state a bus costs: 2 x 8 trips x ~3000 s x 4 bytes, about 0.2 MB)
-    legs = [leg for d in (0, 1) for leg in [x for x in legs if x.direction == d][-KEEP_TRIPS:]]
-    legs.sort(key=lambda leg: leg.start_s)
-    key = (bus, tuple(leg.start_s for leg in legs))
+        blocks = [b for b in blocks if b.day != given.day] + [given]
+    driven = sorted(((trip_key(trip), a, b) for blk in blocks for trip, a, b in blk.trips
+                     if b <= before_t), key=lambda leg: leg[1])
+    keep = []  # the newest KEEP_TRIPS of each kind
+    for key in {k for k, _, _ in driven}:
+        keep += [leg for leg in driven if leg[0] == key][-KEEP_TRIPS:]
+    keep.sort(key=lambda leg: leg[1])
+    sessions = [(a, b) for blk in blocks for _, a, b, _ in blk.charger_stops if b <= before_t]
+    signature = (tuple(a for _, a, _ in keep), tuple(sessions))
     cached = twin.trip_cache.get(bus)
-    if cached is not None and cached[0] == key:
+    if cached is not None and cached[0] == signature:
         return cached[1]
-    frame = pd.concat([twin.samples(bus, leg.start_s, leg.end_s, ("speed_kmh",))
-                       for leg in legs])
-    t, v = frame["t"].to_numpy(float), frame["speed_kmh"].to_numpy(float)
-    for leg in legs:
-        a, b = np.searchsorted(t, [leg.start_s, leg.end_s])
-        if b - a > 60:
-            out[leg.direction].append((v[a:b] / 3.6).astype(np.float32))
-    twin.trip_cache[bus] = (key, out)
+    out = History({})
+    spans = [(a, b) for _, a, b in keep] + sessions
+    if spans:
+        frame = twin.samples(bus, min(a for a, _ in spans), max(b for _, b in spans),
+                             ("speed_kmh", "door_open", "charging"))
+        t = frame["t"].to_numpy(float)
+        speed = frame["speed_kmh"].to_numpy(float) / 3.6
+        door = np.nan_to_num(frame["door_open"].to_numpy(float))
+        for key, a, b in keep:
+            i, j = np.searchsorted(t, [a, b])
+            if j - i > 60:
+                out.trips.setdefault(key, []).append(
+                    np.vstack([speed[i:j], door[i:j]]).astype(np.float32))
+        charging = np.nan_to_num(frame["charging"].to_numpy(float)) > 0.5
+        lost_in, lost_out = [], []
+        for a, b in sessions:
+            i, j = np.searchsorted(t, [a, b])
+            on = np.flatnonzero(charging[i:j])
+            if on.size and j - i > 30:
+                lost_in.append(t[i + on[0]] - a)
+                lost_out.append(b - t[i + on[-1]])
+        if lost_in:
+            # the session's own end (at the pack's ceiling) makes the lead longer: the
+            # lower half of the leads is the disconnecting
+            out.plug_in_s = float(np.median(lost_in))
+            out.plug_out_s = float(np.percentile(lost_out, 25))
+    twin.trip_cache[bus] = (signature, out)
     return out
 
 
-def _stretch(speed_mps: np.ndarray, n: int, from_frac: float = 0.0) -> np.ndarray:
-    """``speed_mps`` (1 Hz) mapped onto ``n`` seconds, from ``from_frac`` of it on."""
-    x = np.linspace(from_frac, 1.0, max(n, 2)) * (len(speed_mps) - 1)
-    return np.interp(x, np.arange(len(speed_mps)), speed_mps)[:n]
+def _fit_duration(trace: np.ndarray, n: int, from_frac: float = 0.0) -> np.ndarray:
+    """The rows of a 1 Hz ``trace`` (speed [m/s], door open; channels x samples), from
+    ``from_frac`` of it on, made ``n`` seconds long by standing longer or shorter at its
+    stops: its drives are kept as they were, so the trip's distance and the bus's
+    accelerations stay its own (a time-stretched trace would ask for accelerations the bus
+    may not have). Where its stops hold too little time to lose, its drives are resampled."""
+    trace = np.atleast_2d(trace)[:, int(from_frac * trace.shape[-1]):]
+    length = trace.shape[1]
+    if n <= 0 or length == 0:
+        return np.zeros((trace.shape[0], max(n, 0)))
+    standing = np.flatnonzero(trace[0] <= 0.1)
+    moving = np.flatnonzero(trace[0] > 0.1)
+    keep_standing = n - len(moving)
+    if keep_standing < 0 or len(standing) == 0:
+        pick = np.linspace(0, length - 1, n).round().astype(int)  # resampled: rare
+    else:
+        chosen = standing[np.linspace(0, len(standing) - 1, keep_standing).round()
+                          .astype(int)] if keep_standing else np.zeros(0, int)
+        pick = np.sort(np.concatenate([moving, chosen]), kind="stable")
+    return trace[:, pick]
 
 
-def plan_inputs(block: Block, t: float, pick, dt_s: float, ambient_degc: float):
-    """The model's input channels [1 s grid on ``dt_s``] from ``t`` to the block's end;
-    ``pick(direction)`` gives a trip's 1 Hz speed trace."""
-    n = int(np.ceil(block.end_s - t))
+def ambient_ahead(twin, bus: str, t: float, n: int, now_degc: float | None) -> np.ndarray:
+    """The ambient [degC] over the ``n`` seconds after ``t``: the bus's own measurement at the
+    same clock time the day before, moved to meet ``now_degc`` (the day's course kept, its
+    level today's); ``now_degc`` throughout where the day before has no measurement.
+    (A weather forecast would do better; the bus's yesterday is what the twin has.)"""
+    if now_degc is None:
+        return np.full(n, 15.0)
+    before = twin.samples(bus, t - 86400.0 - 600.0, t - 86400.0 + n, ("ambient_degc",))
+    before = before.dropna()
+    then = before["ambient_degc"][(before["t"] - (t - 86400.0)).abs() <= 300.0]
+    if then.empty or before["t"].iloc[-1] < t - 86400.0 + n - 1800.0:
+        return np.full(n, now_degc)
+    course = np.interp(t - 86400.0 + np.arange(n), before["t"].to_numpy(float),
+                       before["ambient_degc"].to_numpy(float))
+    return course - float(then.median()) + now_degc
+
+
+def plan_inputs(day_block: DayBlock, t: float, pick, dt_s: float, ambient_degc,
+                chargers: bool = True, plug_in_s: float = 0.0, plug_out_s: float = 0.0):
+    """The model's input channels [on ``dt_s``] from ``t`` to the block's end, and the
+    number of trips ahead and of those driven as the timetable. ``pick(trip)`` gives the
+    1 Hz trace (speed [m/s], door open) of a trip the bus drove like it, or None: the trip is
+    then driven as the block's own timetable (:func:`ebus_env.blocks.drive_rows`, doors
+    shut). Between trips the bus stands, plugged in on a layover at a charger (``chargers``)
+    from ``plug_in_s`` after it arrives to ``plug_out_s`` before it leaves."""
+    from ebus_env.blocks import drive_rows
+
+    n = int(np.ceil(day_block.end_s - t))
     if n < 2:
         raise ConfigError("the block has ended: nothing left to predict")
     speed = np.zeros(n)
+    door = np.zeros(n)
     plugged = np.zeros(n)
-    rating = np.zeros(n)
-    left = 0
-    for leg in block.trips:
-        if leg.end_s <= t:
+    rating = np.full(n, np.nan)
+    left = timetable = 0
+    for trip, start, end in day_block.trips:
+        if end <= t:
             continue
         left += 1
-        a = max(int(np.floor(leg.start_s - t)), 0)
-        b = min(int(np.ceil(leg.end_s - t)), n)
-        frac = max(0.0, (t - leg.start_s) / (leg.end_s - leg.start_s))
-        trace = pick(leg.direction)
-        if trace is not None and b > a:
-            speed[a:b] = _stretch(trace, b - a, frac)
-    for ch in block.chargers:
-        a, b = max(int(ch.start_s - t), 0), min(int(ch.end_s - t), n)
-        if b > a:
-            plugged[a:b] = 1.0
-            rating[a:b] = 1e3 * ch.power_kw
+        a = max(int(np.floor(start - t)), 0)
+        b = min(int(np.ceil(end - t)), n)
+        if b <= a:
+            continue
+        frac = max(0.0, (t - start) / (end - start))
+        trace = pick(trip, end - start)
+        if trace is None:
+            timetable += 1
+            first = int(round(t + a - day_block.start_s))
+            speed[a:b] = drive_rows(day_block.block, first, first + b - a, 1.0)["speed_ref_mps"]
+        else:
+            rows = _fit_duration(trace, b - a, frac)
+            speed[a:b] = rows[0]
+            if len(rows) > 1:
+                door[a:b] = rows[1] > 0.5
+    if chargers:
+        for _, start, end, power_kw in day_block.charger_stops:
+            a = max(int(start + plug_in_s - t), 0)
+            b = min(int(end - plug_out_s - t), n)
+            if b > a:
+                plugged[a:b] = 1.0
+                rating[a:b] = 1e3 * power_kw
     plugged[speed > 0.1] = 0.0
     steps = int(round(1.0 / dt_s))
     grid = np.arange(n * steps) * dt_s
     channels = {"speed_ref_mps": np.interp(grid, np.arange(n), speed),
                 "charger_connected": np.repeat(plugged, steps),
                 "charger_rating_w": np.repeat(rating, steps),
-                "ambient_degc": np.full(n * steps, ambient_degc)}
-    return channels, left
+                "door_open": np.repeat(door, steps),
+                "ambient_degc": np.interp(grid, np.arange(n),
+                                          np.broadcast_to(ambient_degc, (n,)))}
+    return channels, left, timetable
 
 
-def predict_bus(twin, bus: str, schedule: dict | None = None, band: bool = True,
-                at_t: float | None = None, settings=None, seed: int = 0) -> Forecast:
-    """The :class:`Forecast` of ``bus`` from its newest sample (or its sample at ``at_t``)."""
+def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: bool = True,
+                at_t: float | None = None, settings=None, seed: int = 0,
+                model_error: float = MODEL_ERROR) -> Forecast:
+    """The :class:`Forecast` of ``bus`` from its newest sample (or its sample at ``at_t``)
+    along ``schedule`` (a block, :mod:`ebus_env.twin.schedule`; default: the one stored for
+    the day); ``model_error``: the band's :data:`MODEL_ERROR`."""
     from ebus_env.profile import Profile
     from ebus_env.twin.jobs import JobSettings
     from ebus_env.twin.refit import bus_model, latest_values
@@ -158,72 +274,72 @@ def predict_bus(twin, bus: str, schedule: dict | None = None, band: bool = True,
     if soc.empty:
         raise ConfigError(f"bus '{bus}' has sent no SoC in its last 15 min")
     ambient = recent["ambient_degc"].dropna()
-    day = str(pd.Timestamp(t_now, unit="s").date())
-    if schedule is None:
-        schedule = twin.store.schedule(bus_id, day)
-        if schedule is None:
+    if isinstance(schedule, DayBlock):
+        block = schedule
+    else:
+        day = str(pd.Timestamp(t_now, unit="s").date())
+        block = read_block(schedule, day) if schedule is not None else \
+            stored_block(twin, bus_id, day)
+        if block is None:
             raise ConfigError(f"bus '{bus}' has no block for {day}: PUT it to "
                               f"/v1/buses/{bus}/schedules/{day}")
-    block = read_block(schedule)
     model = bus_model(settings.bus_config, settings.dt_s)
     values = latest_values(twin, bus_id, before_t=t_now)
     vec = model.param_vector(values)
-    past = _trips_driven(twin, bus, bus_id, day, t_now, block)
-    if not past[0] and not past[1]:
-        raise ConfigError(f"bus '{bus}' has driven no trip of its block yet: nothing to "
-                          "build the rest of the block from")
-
-    def newest(direction):
-        return (past[direction] or past[1 - direction])[-1]
-
+    past = history(twin, bus, bus_id, block.day, t_now, block)
     soc_now = float(soc.iloc[-1])
-    amb = float(ambient.iloc[-1]) if len(ambient) else 15.0
+    amb = ambient_ahead(twin, bus, t_now, int(np.ceil(block.end_s - t_now)),
+                        float(ambient.tail(300).median()) if len(ambient) else None)
+    every = int(round(10.0 / settings.dt_s))
 
     def run(pick):
-        channels, left = plan_inputs(block, t_now, pick, settings.dt_s, amb)
+        channels, left, timetable = plan_inputs(block, t_now, pick, settings.dt_s, amb,
+                                                plug_in_s=past.plug_in_s,
+                                                plug_out_s=past.plug_out_s)
         profile = Profile(channels, settings.dt_s, f"{bus} block", 0.0)
-        every = int(round(10.0 / settings.dt_s))
         res = model.simulate(profile, vec, soc_start=soc_now / 100.0, record_every=every)
-        return 100.0 * res.trace("soc_frac").astype(float), every * settings.dt_s, left
+        return 100.0 * res.trace("soc_frac").astype(float), left, timetable
 
-    point, step_s, left = run(newest)
+    point, left, timetable = run(past.like)
+    step_s = every * settings.dt_s
     times = t_now + step_s * np.arange(len(point))
     rng = np.random.default_rng(seed)
     members = [point]
     if band:
         for _ in range(MEMBERS):
-            members.append(run(lambda d: _draw(past, d, rng))[0])
+            members.append(run(lambda trip, duration: past.draw(trip, duration, rng))[0])
     stack = np.vstack([m[: len(point)] for m in members])
-    used = np.maximum(soc_now - stack, 0.0)
-    spread = Z90 * MODEL_ERROR_FRAC * used
-    low = np.percentile(stack, 5, axis=0) - spread.max(axis=0)
-    high = np.percentile(stack, 95, axis=0) + spread.max(axis=0)
+    # the SoC points the battery still moves (down driving, up charging): the model's error
+    # grows with them
+    moved = np.concatenate([np.zeros((len(stack), 1)),
+                            np.cumsum(np.abs(np.diff(stack, axis=1)), axis=1)], axis=1).max(0)
+    spread = Z90 * model_error * moved
+    p5, p95 = np.percentile(stack, [5, 95], axis=0)
+    low, high = p5 - spread, p95 + spread
     reserve = float(head.reserve_soc_pct)
     chargers = []
-    for ch in block.chargers:
-        if ch.start_s > t_now:
-            i = min(int((ch.start_s - t_now) / step_s), len(point) - 1)
-            chargers.append({"t": ch.start_s, "site": ch.name, "soc_pct": float(point[i]),
+    for stop, start, _, _ in block.charger_stops:
+        if start > t_now:
+            i = min(int((start - t_now) / step_s), len(point) - 1)
+            chargers.append({"t": start, "site": stop, "soc_pct": float(point[i]),
                              "band_pct": [float(low[i]), float(high[i])] if band else None})
     under = np.flatnonzero((high if band else point) < reserve)
     return Forecast(
-        bus=bus, day=day, t=float(t_now), soc_now_pct=soc_now, end_t=block.end_s,
+        bus=bus, day=block.day, t=float(t_now), soc_now_pct=soc_now, end_t=block.end_s,
         end_soc_pct=float(point[-1]),
         end_band_pct=(float(low[-1]), float(high[-1])) if band else None,
         min_soc_pct=float(point.min()), min_band_top_pct=float(high.min()) if band else None,
         chargers=chargers, reserve_soc_pct=reserve, will_not_make_it=bool(under.size),
         below_reserve_t=float(times[under[0]]) if under.size else None, trips_left=left,
-        fitted=bool(values))
-
-
-def _draw(past, direction, rng):
-    pool = past[direction] or past[1 - direction]
-    return pool[int(rng.integers(len(pool)))]
+        fitted=bool(values), from_schedule=timetable,
+        band_parts={"members_pct": [float(p5[-1]), float(p95[-1])],
+                    "moved_pct": float(moved[-1])} if band else None)
 
 
 def maybe_predict(twin, bus: str, settings) -> Forecast | None:
     """Predict ``bus``'s block when ``predict_every_s`` of data time passed since the last
-    prediction and it is in its block; store it; raise the reserve alarm once a day."""
+    prediction and it is in its block; store it; raise the reserve alarm once a day (once
+    the bus's model has been fitted: not on the starting model's guess)."""
     bus_id = twin.bus_id(bus)
     with twin.store.engine.connect() as conn:
         head = conn.execute(sa.select(buses.c.last_t).where(buses.c.id == bus_id)).scalar()
@@ -232,16 +348,13 @@ def maybe_predict(twin, bus: str, settings) -> Forecast | None:
     if head is None or (last is not None and head - last < settings.predict_every_s):
         return None
     day = str(pd.Timestamp(head, unit="s").date())
-    schedule = twin.store.schedule(bus_id, day)
-    if schedule is None:
-        return None
-    block = read_block(schedule)
-    if not block.start_s <= head < block.end_s:
+    block = stored_block(twin, bus_id, day)
+    if block is None or not block.start_s <= head < block.end_s:
         return None
     try:
-        fc = predict_bus(twin, bus, schedule, settings=settings)
+        fc = predict_bus(twin, bus, block, settings=settings)
     except ConfigError:
-        return None  # nothing driven yet: the next batch tries again
+        return None  # no SoC yet: the next batch tries again
     store_forecast(twin, bus_id, fc)
     return fc
 
@@ -256,7 +369,7 @@ def store_forecast(twin, bus_id: int, fc: Forecast) -> None:
                                "min_soc_pct": fc.min_soc_pct, "trips_left": fc.trips_left,
                                "will_not_make_it": fc.will_not_make_it,
                                "below_reserve_t": fc.below_reserve_t})))
-        if fc.will_not_make_it:
+        if fc.will_not_make_it and fc.fitted:  # not on the starting model's guess
             raised = conn.execute(sa.select(sa.func.count()).select_from(alarms).where(
                 alarms.c.bus_id == bus_id, alarms.c.kind == "reserve",
                 alarms.c.day == fc.day)).scalar()
@@ -274,7 +387,7 @@ def store_forecast(twin, bus_id: int, fc: Forecast) -> None:
 
 
 def energy_tomorrow(twin, bus: str, settings=None) -> dict:
-    """The battery energy [kWh] the bus's next stored block needs, without its chargers:
+    """The battery energy [kWh] the bus's newest stored block needs, without its chargers:
     its trips driven with the bus's newest fitted model (the depot must put it in)."""
     from ebus_env.profile import Profile
     from ebus_env.twin.jobs import JobSettings
@@ -288,17 +401,15 @@ def energy_tomorrow(twin, bus: str, settings=None) -> dict:
             schedules.c.bus_id == bus_id).order_by(schedules.c.day.desc()).limit(1)).first()
     if row is None or last_t is None:
         return {"bus": bus, "day": None, "kwh": None, "why": "no block or no data yet"}
-    block = read_block(json.loads(row.block))
-    block = Block(block.trips, (), block.end_s, block.date)  # no chargers: what it uses
-    past = _trips_driven(twin, bus, bus_id, row.day, min(last_t, block.start_s) + 1e9)
-    if not past[0] and not past[1]:
-        return {"bus": bus, "day": row.day, "kwh": None, "why": "no trip driven yet"}
+    block = read_stored(row.block, row.day)
+    past = history(twin, bus, bus_id, row.day, min(last_t, block.start_s))
     model = bus_model(settings.bus_config, settings.dt_s)
-    channels, _ = plan_inputs(block, block.start_s, lambda d: (past[d] or past[1 - d])[-1],
-                              settings.dt_s, 15.0)
+    channels, _, timetable = plan_inputs(block, block.start_s, past.like, settings.dt_s,
+                                         15.0, chargers=False)
     res = model.simulate(Profile(channels, settings.dt_s, f"{bus} next block"),
                          latest_values(twin, bus_id), soc_start=0.95, record=False)
     summary = res.summary()
     return {"bus": bus, "day": row.day, "kwh": round(float(summary["battery_energy_kwh"]), 2),
             "km": round(float(summary["distance_km"]), 2),
-            "why": "its block's trips on its fitted model, without its chargers"}
+            "why": "its block's trips on its fitted model, without its chargers"
+                   + (f" ({timetable} as the timetable drives them)" if timetable else "")}

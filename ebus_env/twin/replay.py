@@ -4,7 +4,8 @@ The samples go in batches of ``batch_s`` seconds of log time, one batch every
 ``batch_s / speed`` seconds of wall time (``--speed 60x``: an hour of log in a minute); the
 night between two logs is skipped. A batch is sent until the twin acknowledges it (a logger's
 way: a batch id of its own, so a batch re-sent after a lost answer is a duplicate, stored
-once). A log's block (``<log>.block.json`` beside it) is sent before its samples.
+once). A log's block (``<log>.block.json`` beside it, for the day its name gives) is sent before
+its samples.
 """
 
 from __future__ import annotations
@@ -40,6 +41,17 @@ def block_file(log: Path) -> Path:
         if name.endswith(suffix):
             name = name[: -len(suffix)]
     return log.with_name(name + ".block.json")
+
+
+def block_day(block: Path, t0: float) -> str:
+    """The day a block file is for: its name (``2025-05-05.block.json``), else the UTC date
+    of its log's first sample."""
+    name = block.name.removesuffix(".block.json")
+    try:
+        return str(pd.Timestamp(name).date()) if len(name) == 10 else \
+            str(pd.Timestamp(t0, unit="s").date())
+    except ValueError:
+        return str(pd.Timestamp(t0, unit="s").date())
 
 
 def log_samples(log: Path) -> pd.DataFrame:
@@ -101,8 +113,8 @@ class Sender:
         return self._send("POST", f"/v1/buses/{self.bus}/samples",
                           json={"batch_id": batch_id, "samples": records(part)})
 
-    def schedule(self, block: dict) -> dict:
-        return self._send("PUT", f"/v1/buses/{self.bus}/schedules/{block['date']}",
+    def schedule(self, day: str, block: dict) -> dict:
+        return self._send("PUT", f"/v1/buses/{self.bus}/schedules/{day}",
                           content=json.dumps(block))
 
     def close(self) -> None:
@@ -120,12 +132,12 @@ def replay(logs: list[Path], bus: str, url: str, token: str, speed: float = 60.0
     sent_log_s = 0.0
     try:
         for log in map(Path, logs):
-            blk = block_file(log)
-            if blk.exists():
-                sender.schedule(json.loads(blk.read_text()))
-                counts["schedules"] += 1
             frame = log_samples(log)
             t0 = float(frame["t"].iloc[0])
+            blk = block_file(log)
+            if blk.exists():
+                sender.schedule(block_day(blk, t0), json.loads(blk.read_text()))
+                counts["schedules"] += 1
             if start is None:  # the clock starts with the first sample, not the file's read
                 start = clock()
             for part in batches_of(frame, batch_s):

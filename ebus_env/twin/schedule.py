@@ -1,90 +1,99 @@
-"""A bus's block for one day, as the twin reads it: the trips (start and end times, route and
-direction) and the charger sessions planned at terminals (start, end, rated power)::
+"""A bus's block for one day, as the twin reads it: the block format of the timetable studies
+(:mod:`ebus_env.blocks`, its hand-written JSON form), put on the calendar.
 
-    {"bus": "bus-01", "date": "2025-05-05",
-     "trips": [{"trip": "rt7-1", "route": "rt7", "direction": 0,
-                "start": "2025-05-05T06:02:10", "end": "2025-05-05T06:48:31"}, ...],
-     "chargers": [{"start": "...", "end": "...", "power_kw": 300.0, "site": "terminal-0"}],
-     "end": "2025-05-05T15:40:00"}
+The body of ``PUT /v1/buses/BUS/schedules/DAY`` is one block in that form, alone or as the one
+item of ``blocks``, with an optional IANA ``timezone`` (default UTC) for its clock::
 
-Times are ISO 8601, UTC where they carry no offset (as the samples' ``t``).
+    {"timezone": "UTC",
+     "blocks": [{"block_id": "bus-01 2025-05-05",
+                 "chargers": {"kc7_A": {"count": 1, "power_kw": 300}},
+                 "trips": [{"trip_id": "rt7-1", "cycle": "kc7_out",
+                            "start": "06:40:16", "end": "07:41:00"}, ...]}]}
+
+Its times are the day's clock (``HH:MM:SS``, past 24:00 for trips after midnight); the twin
+maps them to UTC epoch seconds, the samples' time. A trip of the bus is known again on later
+days by its route and its two terminal stops (:func:`trip_key`): the twin drives a trip still
+ahead with the speed trace of one the bus drove (:mod:`ebus_env.twin.forecast`).
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from functools import cached_property, lru_cache
 
 import pandas as pd
 
-
-def _t(text, where: str) -> float:
-    try:
-        stamp = pd.Timestamp(text)
-    except (ValueError, TypeError):
-        raise ValueError(f"{where}: '{text}' is not an ISO 8601 date-time") from None
-    if stamp.tzinfo is None:
-        stamp = stamp.tz_localize("UTC")
-    return stamp.timestamp()
+from ebus_env.blocks import Block, Trip, blocks_from_dict
+from ebus_env.errors import ConfigError
 
 
-@dataclass(frozen=True)
-class Leg:
-    """A trip or a charger session, in UTC epoch seconds."""
-
-    start_s: float
-    end_s: float
-    direction: int = 0
-    power_kw: float = 0.0
-    name: str = ""
+def trip_key(trip: Trip) -> tuple[str, str, str]:
+    """What makes two trips of a bus the same run: route, first and last stop."""
+    return (trip.route, trip.start_stop, trip.end_stop)
 
 
-@dataclass(frozen=True)
-class Block:
-    trips: tuple[Leg, ...]
-    chargers: tuple[Leg, ...]
-    end_s: float
-    date: str
+@dataclass(frozen=True, eq=False)
+class DayBlock:
+    """A :class:`~ebus_env.blocks.Block` on its day: ``midnight_s`` is the UTC epoch second
+    of the day's 00:00 in the block's time zone."""
+
+    block: Block
+    day: str
+    midnight_s: float
 
     @property
     def start_s(self) -> float:
-        return min([t.start_s for t in self.trips] + [self.end_s])
+        return self.midnight_s + self.block.start_s
+
+    @property
+    def end_s(self) -> float:
+        return self.midnight_s + self.block.end_s
+
+    @cached_property
+    def trips(self) -> list[tuple[Trip, float, float]]:
+        """(trip, start, end) [UTC epoch s] in time order."""
+        return [(t, self.midnight_s + t.start_s, self.midnight_s + t.end_s)
+                for t in self.block.trips]
+
+    @cached_property
+    def charger_stops(self) -> list[tuple[str, float, float, float]]:
+        """(stop, start, end [UTC epoch s], power [kW]) of each layover at a charger."""
+        return [(lay.stop_id, self.midnight_s + lay.start_s, self.midnight_s + lay.end_s,
+                 lay.charger.power_kw) for lay in self.block.layovers()
+                if lay.charger is not None and lay.end_s > lay.start_s]
 
 
-def check_block(data: dict, day: str | None = None) -> dict:
-    """``data`` as a block, checked (a ValueError names the trip or charger and the field)."""
-    if not isinstance(data, dict) or not isinstance(data.get("trips"), list):
-        raise ValueError("a block is an object with a list of 'trips'")
-    if not data["trips"]:
-        raise ValueError("a block has at least one trip")
-    if day is not None and str(data.get("date", day)) != day:
-        raise ValueError(f"the block's date {data.get('date')} is not the day {day}")
-    previous = -float("inf")
-    for i, trip in enumerate(data["trips"], start=1):
-        a, b = _t(trip.get("start"), f"trip {i} start"), _t(trip.get("end"), f"trip {i} end")
-        if not b > a:
-            raise ValueError(f"trip {i}: its end is not after its start")
-        if a < previous:
-            raise ValueError(f"trip {i}: it starts before trip {i - 1} ends")
-        previous = b
-        if trip.get("direction", 0) not in (0, 1):
-            raise ValueError(f"trip {i}: direction is 0 or 1")
-    for i, ch in enumerate(data.get("chargers", []), start=1):
-        a, b = _t(ch.get("start"), f"charger {i} start"), _t(ch.get("end"), f"charger {i} end")
-        if not b > a:
-            raise ValueError(f"charger {i}: its end is not after its start")
-        power = ch.get("power_kw")
-        if not isinstance(power, (int, float)) or not 0 < power <= 1000:
-            raise ValueError(f"charger {i}: power_kw must be in (0, 1000] kW")
-    if "end" in data:
-        _t(data["end"], "end")
-    return data
+def _midnight(day: str, timezone: str) -> float:
+    try:
+        stamp = pd.Timestamp(day)
+    except (ValueError, TypeError):
+        raise ConfigError(f"day '{day}': give the date as YYYY-MM-DD") from None
+    try:
+        return stamp.tz_localize(timezone).timestamp()
+    except Exception:  # pytz/zoneinfo raise their own kinds
+        raise ConfigError(f"timezone '{timezone}': give an IANA time zone name, e.g. "
+                          "'Europe/Stockholm' or 'UTC'") from None
 
 
-def read_block(data: dict) -> Block:
-    data = check_block(data)
-    trips = tuple(Leg(_t(t["start"], ""), _t(t["end"], ""), int(t.get("direction", 0)),
-                      name=str(t.get("trip", ""))) for t in data["trips"])
-    chargers = tuple(Leg(_t(c["start"], ""), _t(c["end"], ""), power_kw=float(c["power_kw"]),
-                         name=str(c.get("site", ""))) for c in data.get("chargers", []))
-    end = _t(data["end"], "") if "end" in data else trips[-1].end_s
-    return Block(trips, chargers, max(end, trips[-1].end_s), str(data.get("date", "")))
+def read_block(data: dict, day: str) -> DayBlock:
+    """The block of ``data`` (see the module docstring) on ``day`` (YYYY-MM-DD); a
+    :class:`~ebus_env.errors.ConfigError` names what is wrong (its trip and field)."""
+    if not isinstance(data, dict):
+        raise ConfigError("a schedule is an object: one block, or {'blocks': [one block]}")
+    timezone = str(data.get("timezone", "UTC"))
+    body = data if "blocks" in data else {"blocks": [
+        {k: v for k, v in data.items() if k != "timezone"}]}
+    if not isinstance(body.get("blocks"), list) or len(body["blocks"]) != 1:
+        raise ConfigError("a bus's schedule for a day is one block: give 'blocks' with one item")
+    block = blocks_from_dict(body, f"the schedule of {day}")[0]
+    if block.problems():
+        raise ConfigError(f"block {block.block_id}: {'; '.join(block.problems())}")
+    return DayBlock(block, day, _midnight(day, timezone))
+
+
+@lru_cache(maxsize=4096)
+def read_stored(text: str, day: str) -> DayBlock:
+    """:func:`read_block` of a block stored as JSON text, read once per process (reading a
+    block builds its trips' cycles: tens of ms a trip)."""
+    return read_block(json.loads(text), day)

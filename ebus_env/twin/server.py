@@ -208,17 +208,20 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
 
     @app.put("/v1/buses/{bus}/schedules/{day}", tags=["ingest"])
     async def put_schedule(bus: str, day: str, request: Request, g: Auth):
-        """The bus's block for ``day`` (YYYY-MM-DD): its trips and the chargers it meets."""
-        from ebus_env.twin.schedule import check_block
+        """The bus's block for ``day`` (YYYY-MM-DD), in the block format of the timetable
+        studies (docs/twin.md): its trips and the chargers at their terminals."""
+        from ebus_env.twin.schedule import read_block
 
         may_write(g, bus)
         body = await body_of(request, payload.MAX_BATCH_BYTES)
         try:
-            block = check_block(json.loads(body), day)
-        except ValueError as exc:
+            data = json.loads(body)
+            block = read_block(data, day)
+        except (ValueError, EbusError) as exc:
             raise payload.PayloadError(str(exc), "block") from None
-        await run_in_threadpool(twin.store.put_schedule, bus, day, block)
-        return {"bus": bus, "day": day, "trips": len(block["trips"])}
+        await run_in_threadpool(twin.store.put_schedule, bus, day, data)
+        return {"bus": bus, "day": day, "block": block.block.block_id,
+                "trips": len(block.trips), "chargers": len(block.charger_stops)}
 
     @app.get("/v1/fleets/{fleet}/buses", tags=["query"])
     def get_fleet(fleet: str, g: Auth):

@@ -242,10 +242,14 @@ class Store:
                                                    block=json.dumps(block)))
 
     def schedule(self, bus_id: int, day: str) -> dict | None:
-        with self.engine.connect() as conn:
-            text = conn.execute(sa.select(schedules.c.block).where(
-                schedules.c.bus_id == bus_id, schedules.c.day == day)).scalar()
+        text = self.schedule_text(bus_id, day)
         return None if text is None else json.loads(text)
+
+    def schedule_text(self, bus_id: int, day: str) -> str | None:
+        """The bus's block for ``day`` as stored (JSON text), or None."""
+        with self.engine.connect() as conn:
+            return conn.execute(sa.select(schedules.c.block).where(
+                schedules.c.bus_id == bus_id, schedules.c.day == day)).scalar()
 
 
 def alembic_config(url: str | None = None):

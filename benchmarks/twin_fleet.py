@@ -1,19 +1,22 @@
-"""A small made-up fleet for the live twin to replay: several buses over several days, one of
-which develops a fault on a given day. Made with the independent truth simulator
+"""A made-up fleet for the live twin to replay: several buses over several days, one of which
+develops a fault on a given day. Made with the independent truth simulator
 (:mod:`benchmarks.truth.sim`), so the twin's model has not made its own data.
 
-    python -m benchmarks.truth.fleet_days --out data/twin_fleet
+    python -m benchmarks.twin_fleet --out data/twin_fleet              # the shipped fleet
+    python -m benchmarks.twin_fleet --out DIR --random 25 --seed 7     # a larger one (bench)
 
 writes, per bus and day, ``<bus>/<date>.csv.gz`` (a degraded 1 Hz telematics log, the
-columns of :mod:`benchmarks.truth.degrade`) and ``<bus>/<date>.block.json`` (the day's block:
-its trips and the chargers it meets, :mod:`ebus_env.twin.schedule`), and ``fleet.json`` (the
-truth: each bus's base parameters, its fault and the day it starts, each day's summary).
+columns of :mod:`benchmarks.truth.degrade`) and ``<bus>/<date>.block.json`` (the day's block
+in the hand-written form of :mod:`ebus_env.blocks`: its trips as the King County route
+directions they drive, ``kc7_out``..., at the times the bus kept, and the terminal chargers
+it meets), and ``fleet.json`` (the truth: each bus's base parameters, its fault and the day it
+starts, each day's summary).
 
-Each day runs the bus's route out and back from ``start`` for ``hours``; after service the bus
-stands at the depot for :data:`DEPOT_MIN` minutes (its loads on, nothing charging), which is
-how the twin sees that the day is over. The fault is a leaking brake-air system: the electric
-compressor (the truth simulator's ``air_compressor``, a load the library has no effect for)
-runs far more often than a sound one.
+Each day runs the bus's route out and back from ``start`` for ``hours``, ending with its last
+whole trip; after service the bus stands at the depot for :data:`DEPOT_MIN` minutes (its
+loads on, nothing charging), which is how the twin sees that the day is over. The fault is a
+leaking brake-air system: the electric compressor (the truth simulator's ``air_compressor``, a
+load the library has no effect for) runs far more often than a sound one.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ LEAK = {"compressor_w": 6000.0, "fill_bar_per_s": 0.05, "brake_bar": 0.15, "door
         "leak_bar_per_s": 0.012, "cut_in_bar": 10.0, "cut_out_bar": 12.5}
 """The fault: a brake-air system leaking 0.012 bar/s (a sound one: 2-5e-4 bar/s), so that the
 6 kW compressor runs about a quarter of the time."""
+DIRECTIONS = ("out", "back")  # leg 0 (route file d0) runs A -> B, leg 1 B -> A
 
 
 @dataclass(frozen=True)
@@ -61,8 +65,28 @@ FLEET = (
 DAYS = 4
 
 
+def random_fleet(n: int, seed: int, first: int = 11) -> tuple[FleetBus, ...]:
+    """``n`` buses drawn like the shipped ones (for the benchmark; not shipped): pack, route,
+    terminal chargers (none for about a third: depot charging only) and, for about one in
+    five, the brake-air leak from day 2 or 3 on. Named ``bus-11``, ``bus-12``..."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        terminals = [(), (0,), (1,), (0, 1)][int(rng.choice(4, p=[0.35, 0.25, 0.15, 0.25]))]
+        out.append(FleetBus(f"bus-{first + k:02d}", str(rng.choice(["LFP", "NMC"])),
+                            str(rng.choice(["rt7", "rt44", "rt45"])),
+                            float(rng.choice([150.0, 300.0, 450.0])), terminals,
+                            int(rng.integers(2, 4)) if rng.random() < 0.2 else None))
+    return tuple(out)
+
+
 def with_depot(plan: pd.DataFrame, minutes: float) -> pd.DataFrame:
-    """The plan with the bus standing at the depot for ``minutes`` after its last row."""
+    """The plan up to the end of its last whole trip, then the bus standing at the depot for
+    ``minutes`` (the trip the day's end cut short is not driven)."""
+    legs = plan["leg"].to_numpy()
+    if legs[-1] >= 0:  # cut inside a trip: the day ends before that trip's layover
+        last = np.flatnonzero(legs == legs[-1])[0]
+        plan = plan.iloc[: np.flatnonzero(legs[:last] >= 0)[-1] + 1]
     n = int(round(60.0 * minutes))
     tail = pd.DataFrame({c: np.repeat(plan[c].to_numpy()[-1:], n) for c in plan.columns})
     tail["time_s"] = plan["time_s"].iloc[-1] + 1.0 + np.arange(n)
@@ -76,36 +100,43 @@ def with_depot(plan: pd.DataFrame, minutes: float) -> pd.DataFrame:
     return out
 
 
-def block(plan: pd.DataFrame, bus: str, date: str) -> dict:
-    """The day's block as its schedule gives it: trips (route, direction, start, end) and the
-    charger sessions planned at the terminals (start, end, rated kW)."""
-    start = pd.Timestamp(date)
+def block(plan: pd.DataFrame, bus: str, fb: FleetBus) -> dict:
+    """The day's block in the hand-written form of :mod:`ebus_env.blocks`: each trip the
+    King County route direction it drives, from the time it left its terminal to the time it
+    reached the other, and the terminal chargers (the stops where a leg starts). A trip that
+    ran faster than its route's timetable (the speed limits, 20 s at every stop) keeps the
+    route's own time."""
+    from ebus_env.blocks import clock
+    from ebus_env.routes import load_route
 
-    def clock(h):
-        return (start + pd.to_timedelta(round(float(h) * 3600.0), unit="s")).isoformat()
-
+    number = plan.attrs["route"].removeprefix("rt")
     legs = plan["leg"].to_numpy()
-    clock_h = plan["clock_h"].to_numpy()
-    trips, chargers = [], []
+    clock_s = plan["clock_h"].to_numpy() * 3600.0
     edges = np.flatnonzero(np.diff(legs) != 0) + 1
+    trips = []
     for a, b in zip(np.r_[0, edges], np.r_[edges, len(legs)], strict=True):
-        if legs[a] >= 0:
-            trips.append({"trip": f"{plan.attrs['route']}-{len(trips) + 1}",
-                          "route": plan.attrs["route"], "direction": int(legs[a] % 2),
-                          "start": clock(clock_h[a]), "end": clock(clock_h[b - 1])})
-    plugged = plan["charging"].to_numpy()
-    on = np.flatnonzero(np.diff(np.r_[0, plugged, 0]) != 0)
-    for a, b in zip(on[::2], on[1::2], strict=True):
-        chargers.append({"start": clock(clock_h[a]), "end": clock(clock_h[b - 1]),
-                         "power_kw": float(plan["charger_kw"].iloc[a]),
-                         "site": f"terminal-{int(legs[max(a - 1, 0)] + 1) % 2}"})
-    return {"bus": bus, "date": date, "trips": trips, "chargers": chargers,
-            "end": clock(clock_h[-1])}
+        if legs[a] < 0:
+            continue
+        cycle = f"kc{number}_{DIRECTIONS[legs[a] % 2]}"
+        start = round(float(clock_s[a]))
+        end = max(round(float(clock_s[b - 1])),
+                  start + int(np.ceil(load_route(cycle).cycle(dt_s=0.5).duration_s)))
+        if trips and trips[-1]["_end"] > start:
+            raise ValueError(f"{bus}: trip {len(trips) + 1} starts before the one before ends")
+        trips.append({"trip_id": f"{plan.attrs['route']}-{len(trips) + 1}",
+                      "route": number, "cycle": cycle, "start": clock(start),
+                      "end": clock(end), "_end": end})
+    for t in trips:
+        del t["_end"]
+    stops = (f"kc{number}_A", f"kc{number}_B")
+    return {"block_id": f"{bus} {plan.attrs['date']}", "trips": trips,
+            "chargers": {stops[k]: {"count": 1, "power_kw": fb.charger_kw}
+                         for k in fb.charger_terminals}}
 
 
 def bus_day(fb: FleetBus, day: int, seed: int = SEED):
     """The clean trace, the log, the block and the truth summary of one bus-day."""
-    bus_ss, days_ss = np.random.SeedSequence([seed, int(fb.bus[-2:])]).spawn(2)
+    bus_ss, _ = np.random.SeedSequence([seed, int(fb.bus[-2:])]).spawn(2)
     base = draw_base(np.random.default_rng(bus_ss), fb.chemistry)
     plan_ss, phys_ss, log_ss = np.random.SeedSequence(
         [seed, int(fb.bus[-2:]), day]).spawn(3)
@@ -127,15 +158,19 @@ def bus_day(fb: FleetBus, day: int, seed: int = SEED):
     clean.attrs.update(plan.attrs)
     log = degrade(clean, np.random.default_rng(log_ss))
     km = float(trace["distance_m"].iloc[-1]) / 1000.0
+    blk = block(plan, fb.bus, fb)
+    in_block = plan["leg"].to_numpy() >= -1
+    soc = trace["soc_frac"].to_numpy()
     summary = {"date": date, "fault": fault, "km": round(km, 3),
                "soc_start_pct": round(100 * soc0, 2),
-               "soc_end_pct": round(100 * float(trace["soc_frac"].iloc[-1]), 2),
-               "soc_min_pct": round(100 * float(trace["soc_frac"].min()), 2),
+               "soc_end_pct": round(100 * float(soc[in_block][-1]), 2),
+               "soc_min_pct": round(100 * float(soc[in_block].min()), 2),
                "hidden_kwh": round(float(trace["e_hidden_j"].iloc[-1]) / 3.6e6, 3)}
-    return trace, log, block(plan, fb.bus, date), summary, base
+    return trace, log, blk, summary, base
 
 
-def write(out: str | Path, fleet=FLEET, days: int = DAYS, seed: int = SEED) -> dict:
+def write(out: str | Path, fleet=FLEET, days: int = DAYS, seed: int = SEED,
+          quiet: bool = False) -> dict:
     out = Path(out)
     record = {"seed": seed, "made_up": True, "buses": {}}
     for fb in fleet:
@@ -148,7 +183,8 @@ def write(out: str | Path, fleet=FLEET, days: int = DAYS, seed: int = SEED) -> d
             _atomic_write(folder / f"{summary['date']}.block.json",
                           (json.dumps(blk, indent=1) + "\n").encode())
             rows.append(summary)
-            print(f"{fb.bus} {summary}")
+            if not quiet:
+                print(f"{fb.bus} {summary}")
         record["buses"][fb.bus] = {
             "chemistry": fb.chemistry, "route": fb.route, "charger_kw": fb.charger_kw,
             "charger_terminals": list(fb.charger_terminals),
@@ -167,8 +203,11 @@ def main(argv=None) -> None:
     parser.add_argument("--out", required=True)
     parser.add_argument("--days", type=int, default=DAYS)
     parser.add_argument("--seed", type=int, default=SEED)
+    parser.add_argument("--random", type=int, default=0,
+                        help="this many random buses instead of the shipped five")
     args = parser.parse_args(argv)
-    write(args.out, FLEET, args.days, args.seed)
+    fleet = random_fleet(args.random, args.seed) if args.random else FLEET
+    write(args.out, fleet, args.days, args.seed)
 
 
 if __name__ == "__main__":
