@@ -1,13 +1,18 @@
 """A model per bus that tunes itself as its data come in.
 
 * **Window re-fit** (while the bus runs its day): once ``refit_every_min`` of new data have
-  come, the day so far is tuned with the windowed iSOPT of
-  :mod:`ebus_env.calibration.windowed`, warm-started from the bus's last fit (its first fit
-  starts with a global search), freeing :data:`WINDOW_FREE`.
+  come, the bus's estimate is refined on its day so far from its last fit: the step the
+  windowed tuning of :mod:`ebus_env.calibration.windowed` makes after each window (a few
+  Levenberg-Marquardt iterations from the previous estimate on all data up to the window's
+  end), freeing what changes from day to day (:data:`WINDOW_FREE`). A bus with no fit yet
+  gets the windowed tuning's first window, a global iSOPT search.
 * **Cross-day fit** (when a day is finished): the bus-to-bus parameters
-  (:data:`CROSS_DAY_FREE`, in the diagnosis's bus-to-bus ranges,
-  :data:`ebus_env.diagnostics.ladder.NUISANCE`) are fitted on the bus's last ``cross_days``
-  finished days together, from its last values.
+  (:data:`CROSS_DAY_FREE`: the diagnosis's, :data:`ebus_env.diagnostics.ladder.NUISANCE`, in
+  its search ranges, with the capacity fade and the pack's charge acceptance) are fitted on the
+  bus's last ``cross_days`` finished days together: by a global iSOPT search the first time,
+  then by Levenberg-Marquardt from the bus's last values.
+  The SoC at which the bus's charger sessions end by themselves, the pack's charge ceiling
+  (:func:`charge_ceiling`), is read from the same days.
 
 Each fit is stored with the time it was made and the interval of data it used, so a bus's
 parameter history (capacity fade as RCD, auxiliary base load, rolling resistance, drivetrain
@@ -28,14 +33,18 @@ import sqlalchemy as sa
 
 from ebus_env.twin.store import fits, service_days
 
-WINDOW_FREE = ("passenger_load.load_frac", "cabin_hvac.setpoint_degc", "static_rcd.rcd_frac",
-               "cccv_taper.cv_soc_pct", "grid_charger.power_kw",
-               "regen_cutoff.cutoff_speed_mps", "auxiliaries.base_power_w")
-"""The window re-fit's free parameters: the paper's (without the CV decay, which a day of
-opportunity charging to a stop SoC rarely shows) and the auxiliary base load."""
-CROSS_DAY_FREE = ("static_rcd.rcd_frac", "auxiliaries.base_power_w",
-                  "rolling_resistance.rolling_coef", "efficiency_map.gearbox_efficiency",
-                  "rint_battery.cell_capacity_ah", "vehicle_body.curb_mass_kg")
+WINDOW_FREE = ("passenger_load.load_frac", "cabin_hvac.setpoint_degc",
+               "auxiliaries.base_power_w", "regen_cutoff.cutoff_speed_mps")
+"""The window re-fit's free parameters: what changes from day to day and within one
+(passengers, the cabin's setpoint, the loads, the regenerative braking's cut-off)."""
+CROSS_DAY_FREE = ("vehicle_body.curb_mass_kg", "rolling_resistance.rolling_coef",
+                  "auxiliaries.base_power_w", "efficiency_map.gearbox_efficiency",
+                  "rint_battery.cell_capacity_ah", "rint_battery.cell_resistance_mohm",
+                  "regen_cutoff.max_decel_mps2", "static_rcd.rcd_frac",
+                  "rint_battery.max_charge_c_rate", "cccv_taper.cv_soc_pct")
+"""The cross-day fit's free parameters: the bus-to-bus ones of the diagnosis
+(:data:`~ebus_env.diagnostics.ladder.NUISANCE`), the capacity fade and the pack's charge
+acceptance (its C-rate limit and where its CV taper starts)."""
 HISTORY = {"static_rcd.rcd_frac": "capacity fade (RCD)",
            "auxiliaries.base_power_w": "auxiliary base load",
            "rolling_resistance.rolling_coef": "rolling resistance",
@@ -43,6 +52,12 @@ HISTORY = {"static_rcd.rcd_frac": "capacity fade (RCD)",
 MIN_PROFILE_S = 1800.0
 """Segments shorter than this (between two gaps of the data) are left out of a fit: shorter
 than one window of the windowed tuning."""
+WINDOW_ITERATIONS = 5
+"""Levenberg-Marquardt iterations of a window re-fit (the windowed tuning's own)."""
+CEILING = "rint_battery.soc_max_frac"
+SESSION_END_S = 60.0
+"""A charger session that ends this long [s] before the bus moves ended by itself (the BMS's
+ceiling), not because the bus left."""
 
 
 @lru_cache(maxsize=8)
@@ -73,8 +88,8 @@ def profiles_of(frame: pd.DataFrame, dt_s: float, name: str) -> list:
 
 
 def latest_values(twin, bus_id: int, before_t: float | None = None) -> dict:
-    """The bus's newest fitted values: its last cross-day fit, overlaid with any window fit
-    made after it."""
+    """The bus's newest fitted values: its fits in order, each overlaying the ones before
+    (a window fit moves only its own parameters)."""
     with twin.store.engine.connect() as conn:
         query = sa.select(fits).where(fits.c.bus_id == bus_id).order_by(fits.c.id)
         if before_t is not None:
@@ -86,6 +101,26 @@ def latest_values(twin, bus_id: int, before_t: float | None = None) -> dict:
     return values
 
 
+def charge_ceiling(frames: list[pd.DataFrame]) -> float | None:
+    """The SoC [0-1] at which the bus's charger sessions end by themselves: the median of
+    the SoC at the end of each session that ended :data:`SESSION_END_S` or more before the
+    bus moved again (a BMS or charger stop SoC); None when no session did."""
+    ends = []
+    for frame in frames:
+        if "charging" not in frame or frame["charging"].isna().all() or len(frame) < 3:
+            continue
+        t = frame["t"].to_numpy(float)
+        on = np.nan_to_num(frame["charging"].to_numpy(float)) > 0.5
+        soc = frame["soc_pct"].to_numpy(float)
+        moving_t = t[frame["speed_kmh"].to_numpy(float) > 1.0]
+        for i in np.flatnonzero(on[:-1] & ~on[1:]):
+            k = np.searchsorted(moving_t, t[i])
+            if k < len(moving_t) and moving_t[k] - t[i] >= SESSION_END_S \
+                    and np.isfinite(soc[i]):
+                ends.append(soc[i])
+    return float(np.median(ends)) / 100.0 if ends else None
+
+
 def _store_fit(twin, bus_id: int, kind: str, t_from: float, t_to: float, result: dict) -> None:
     with twin.store.engine.begin() as conn:
         conn.execute(fits.insert().values(
@@ -94,13 +129,17 @@ def _store_fit(twin, bus_id: int, kind: str, t_from: float, t_to: float, result:
             wall_s=result["wall_s"]))
 
 
-def fit_task(frames: list[pd.DataFrame], free: tuple[str, ...], start: dict, windowed: bool,
-             bus_config: str, dt_s: float, seed: int = 0) -> dict | None:
+def fit_task(frames: list[pd.DataFrame], free: tuple[str, ...], start: dict, local: bool,
+             bus_config: str, dt_s: float, seed: int = 0,
+             iterations: int = WINDOW_ITERATIONS) -> dict | None:
     """One fit (run here or as a Ray task): the profiles of ``frames``, ``free`` parameters
-    from ``start``. Returns the fitted values, the NRMSE and the wall time, or None when the
-    data hold no profile long enough."""
+    from ``start`` (the bus's other values held). ``local``: the windowed tuning's step,
+    Levenberg-Marquardt from ``start`` (never ends worse than it); else iSOPT seeded with
+    ``start``, then a polish. Returns the fitted values, the NRMSE and the wall time, or None
+    when the data hold no profile long enough."""
     from ebus_env.calibration import ISOPTSettings, calibrate
-    from ebus_env.calibration.windowed import WindowSettings
+    from ebus_env.calibration.local import polish
+    from ebus_env.calibration.problem import CalibrationProblem
     from ebus_env.diagnostics.ladder import nuisance_ranges
 
     model = bus_model(bus_config, dt_s)
@@ -109,24 +148,27 @@ def fit_task(frames: list[pd.DataFrame], free: tuple[str, ...], start: dict, win
         return None
     names = [n for n in (model.equivalent(f) for f in free) if n is not None]
     bounds = {k: v for k, v in nuisance_ranges(model, profiles).items() if k in names}
-    # the bus's other fitted values are held: a fit moves its own parameters only
     fixed = {k: v for k, v in start.items() if k not in names}
     t0 = time.perf_counter()
-    if windowed:
-        result = calibrate(model, profiles, names, bounds=bounds, windowed=True, fixed=fixed,
-                           start=[start] if start else (), polish_starts=0,
-                           settings=ISOPTSettings(seed=seed),
-                           window_settings=WindowSettings(min_window_min=30.0))
+    if local:
+        problem = CalibrationProblem(model, profiles, names, bounds, fixed)
+        points, nrmse, _ = polish(problem, problem.points([start]), iterations=iterations)
+        values, cost = problem.named(points[0]), float(nrmse[0])
     else:
         result = calibrate(model, profiles, names, bounds=bounds, fixed=fixed,
                            start=[start] if start else (), polish_starts=1,
                            settings=ISOPTSettings(seed=seed, iterations=8))
-    return {"values": {k: float(v) for k, v in result.values.items()},
-            "nrmse": float(result.fit["nrmse"]), "wall_s": time.perf_counter() - t0}
+        values, cost = result.values, float(result.fit["nrmse"])
+    out = {k: float(v) for k, v in values.items()}
+    if "rint_battery.max_charge_c_rate" in names:  # the cross-day fit: the pack's ceiling too
+        ceiling = charge_ceiling(frames)
+        if ceiling is not None:
+            out[CEILING] = float(np.clip(ceiling, 0.7, 1.0))
+    return {"values": out, "nrmse": cost, "wall_s": time.perf_counter() - t0}
 
 
 def open_day_start(twin, bus_id: int) -> float:
-    """The start of the bus's open (unfinished) day: after its last finished day."""
+    """The end of the bus's last finished day (-inf before its first)."""
     with twin.store.engine.connect() as conn:
         end = conn.execute(sa.select(sa.func.max(service_days.c.t_end))
                            .where(service_days.c.bus_id == bus_id)).scalar()
@@ -134,7 +176,10 @@ def open_day_start(twin, bus_id: int) -> float:
 
 
 def maybe_refit(twin, bus: str, settings, runner=None) -> dict | None:
-    """A window re-fit of ``bus``'s open day when ``refit_every_min`` of new data came."""
+    """A window re-fit of ``bus``'s day so far when ``refit_every_min`` of new data came."""
+    from ebus_env.depot.service_days import service_days as cut_days
+    from ebus_env.twin.closed_days import day_rule
+
     bus_id = twin.bus_id(bus)
     start = open_day_start(twin, bus_id)
     with twin.store.engine.connect() as conn:
@@ -143,29 +188,39 @@ def maybe_refit(twin, bus: str, settings, runner=None) -> dict | None:
     frame = twin.samples(bus, t_from=start + 1e-3 if np.isfinite(start) else -np.inf)
     if len(frame) < 2:
         return None
+    t = frame["t"].to_numpy(float)
+    days = cut_days(t, frame["speed_kmh"].to_numpy(float), day_rule(settings.day_end_idle_min))
+    if not days:
+        return None
+    frame = frame[frame["t"] >= days[-1][0]]  # today's run: not the last day's depot tail
     t_last = float(frame["t"].iloc[-1])
     since = max(float(frame["t"].iloc[0]), last_fit or -np.inf)
     if t_last - since < 60.0 * settings.refit_every_min:
         return None
     run = runner or (lambda fn, *a: fn(*a))
-    result = run(fit_task, [frame], WINDOW_FREE, latest_values(twin, bus_id), True,
-                 settings.bus_config, settings.dt_s)
+    values = latest_values(twin, bus_id)
+    result = run(fit_task, [frame], WINDOW_FREE, values, bool(values), settings.bus_config,
+                 settings.dt_s)
     if result is not None:
         _store_fit(twin, bus_id, "window", float(frame["t"].iloc[0]), t_last, result)
     return result
 
 
 def cross_day_fit(twin, bus: str, day: str, settings, runner=None) -> dict | None:
-    """The bus-to-bus parameters on the bus's last ``cross_days`` finished days."""
+    """The bus-to-bus parameters on the bus's last ``cross_days`` finished days: a global
+    search the first time, then refined from the bus's last values (they drift slowly: a
+    pack's fade, a tyre's wear)."""
     bus_id = twin.bus_id(bus)
     with twin.store.engine.connect() as conn:
         days = conn.execute(sa.select(service_days.c.t_start, service_days.c.t_end).where(
             service_days.c.bus_id == bus_id, service_days.c.day <= day)
             .order_by(service_days.c.day.desc()).limit(settings.cross_days)).all()
+        searched = conn.execute(sa.select(sa.func.count()).select_from(fits).where(
+            fits.c.bus_id == bus_id, fits.c.kind == "cross-day")).scalar()
     frames = [twin.samples(bus, a, b) for a, b in reversed(days)]
     run = runner or (lambda fn, *a: fn(*a))
-    result = run(fit_task, frames, CROSS_DAY_FREE, latest_values(twin, bus_id), False,
-                 settings.bus_config, settings.dt_s)
+    result = run(fit_task, frames, CROSS_DAY_FREE, latest_values(twin, bus_id),
+                 bool(searched), settings.bus_config, settings.dt_s)
     if result is not None:
         _store_fit(twin, bus_id, "cross-day", float(days[-1].t_start), float(days[0].t_end),
                    result)
