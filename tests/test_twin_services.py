@@ -1,6 +1,7 @@
 """The twin with real services: PostgreSQL, a Mosquitto broker that checks credentials, the
-twin killed with SIGKILL mid-replay and restarted, the dashboard in headless Chromium, and
-re-fits on a two-node Ray cluster. Each service runs on 127.0.0.1 in a temporary folder."""
+twin killed with SIGKILL mid-replay and restarted, and ``ebus twin serve`` with its jobs on a
+two-node Ray cluster. Each service runs on 127.0.0.1 in a temporary folder. (The dashboard
+in headless Chromium: tests/test_twin_pipeline.py, with the alarms the pipeline raised.)"""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import json
 import os
 import secrets
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
@@ -23,7 +23,7 @@ from ebus_env.twin import Twin, open_store  # noqa: E402
 from ebus_env.twin.ingest import from_log_file  # noqa: E402
 from ebus_env.twin.store import batches, samples  # noqa: E402
 from ebus_env.twin.tokens import create  # noqa: E402
-from tests.twin_services import free_port, mosquitto, need, postgres, serve  # noqa: E402
+from tests.twin_services import free_port, mosquitto, postgres, serve  # noqa: E402
 
 FLEET = paths.here_or_shipped("data/twin_fleet")
 T0 = 1_746_424_800.0
@@ -180,105 +180,19 @@ def test_kill_9_mid_replay_of_20_buses_loses_no_acknowledged_sample(tmp_path):
     assert len(rows) == 20 * 300 and set(ids) == set(tokens)
 
 
-def test_the_dashboard_shows_a_replayed_bus_and_its_alarm_in_headless_chromium(tmp_path):
-    import uvicorn
-
-    from ebus_env.twin.server import create_app
-    from ebus_env.twin.store import alarms
-
-    browser = need("chromium", "/usr/bin/chromium")
-    driver_path = need("chromedriver", "/usr/bin/chromedriver")
-    if not os.environ.get("EBUS_REQUIRE_CHROMIUM") and not os.environ.get(
-            "EBUS_REQUIRE_TWIN_SERVICES"):
-        pytest.importorskip("selenium")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
-
-    store = open_store(tmp_path / "twin.sqlite")
-    write = create(store, fleet="north", bus="bus-05")
-    read = create(store, fleet="north")
-    twin = Twin(store)
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(twin), host="127.0.0.1", port=port,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    options = webdriver.ChromeOptions()
-    options.binary_location = browser
-    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run",
-                 "--disable-dev-shm-usage"):
-        options.add_argument(flag)
-    chrome = webdriver.Chrome(service=Service(driver_path), options=options)
-    try:
-        _until(lambda: server.started, 30)
-        chrome.get(f"http://127.0.0.1:{port}/?fleet=north&token={read}")
-        waiter = WebDriverWait(chrome, 30)
-
-        class wait:  # noqa: N801 - the page as it was, when a wait fails
-            @staticmethod
-            def until(ready):
-                try:
-                    return waiter.until(ready)
-                except Exception:
-                    raise AssertionError(chrome.find_element(By.TAG_NAME, "body").text[:2000]) \
-                        from None
-        wait.until(lambda d: "1 buses" in d.find_element(By.ID, "status").text)
-        assert chrome.find_element(By.CSS_SELECTOR, "tr[data-bus=bus-05] .state").text == \
-            "no data"
-        # the bus's logger starts: the page shows it without a reload
-        from ebus_env.twin.replay import replay
-
-        log = FLEET / "bus-05" / "2025-05-08.csv.gz"
-        counts = replay([log], "bus-05", f"http://127.0.0.1:{port}", write, speed=1e5,
-                        limit_s=3.0)
-        assert counts["samples"] > 0, counts
-        wait.until(lambda d: d.find_element(By.CSS_SELECTOR, "tr[data-bus=bus-05] .state")
-                   .text == "live")
-        soc = chrome.find_element(By.CSS_SELECTOR, "tr[data-bus=bus-05] .soc").text
-        assert soc.endswith("%") and 0 < float(soc.split()[0]) <= 100
-        with store.engine.begin() as conn:  # an alarm the twin raised
-            conn.execute(alarms.insert().values(
-                bus_id=twin.bus_id("bus-05"), kind="reserve", raised_at=time.time(),
-                data_t=T0, day="2025-05-08", lead_s=3600.0,
-                message="bus-05 will run below its 30 % reserve in about 60 min"))
-        wait.until(lambda d: "below its 30 % reserve" in d.find_element(
-            By.CSS_SELECTOR, "tr[data-bus=bus-05] .latest-alarm").text)
-        chrome.get(f"http://127.0.0.1:{port}/bus/bus-05")
-        wait.until(lambda d: int(d.find_element(By.ID, "soc").get_attribute("data-points")
-                                 or 0) > 0)
-        assert "reserve" in chrome.find_element(By.ID, "alarms").text
-    finally:
-        chrome.quit()
-        server.should_exit = True
-        thread.join(timeout=30)
-
-
-RAY_DRIVER = """
-import json, sys
-from ebus_env.twin import Twin, open_store
-from ebus_env.twin.jobs import Jobs, JobSettings
-from ebus_env.twin.refit import maybe_refit
-twin = Twin(open_store(sys.argv[1]))
-jobs = Jobs(twin, JobSettings(), ray=True, address=sys.argv[2])
-jobs.start()
-result = maybe_refit(twin, "bus-01", jobs.settings, runner=jobs.remote)
-import ray
-print(json.dumps({"result": result, "nodes": len([n for n in ray.nodes() if n["Alive"]])}))
-jobs.stop()
-"""
-
-
 @pytest.mark.slow
-def test_refits_run_on_a_two_node_ray_cluster(tmp_path):
-    """The window re-fit as a Ray task on a two-node cluster on 127.0.0.1 (the driver, as
-    ``ebus twin serve --address`` would, in a process of its own with the cluster's token)."""
-    import subprocess
+def test_the_twin_serves_with_its_jobs_on_a_two_node_ray_cluster(tmp_path):
+    """``ebus twin serve --ray --address`` on a two-node cluster on 127.0.0.1 (the twin in a
+    process of its own with the cluster's token, as a deployment runs it): a bus's logger
+    streams a little over an hour of its day (one window re-fit's worth: ``refit_every_min``
+    is 60); the bus's window re-fit runs as a Ray task and is stored."""
 
-    if not os.environ.get("EBUS_REQUIRE_RAY"):
+    import httpx
+
+    if not os.environ.get("EBUS_REQUIRE_RAY") and not os.environ.get(
+            "EBUS_REQUIRE_TWIN_SERVICES"):
         pytest.importorskip("ray")
+    from ebus_env.twin.replay import Sender, batches_of
     from tests.test_study_ray import two_node_cluster
 
     root = Path(__file__).resolve().parent.parent
@@ -287,18 +201,31 @@ def test_refits_run_on_a_two_node_ray_cluster(tmp_path):
            "RAY_AUTH_TOKEN": secrets.token_hex(32)}
     db = tmp_path / "twin.sqlite"
     store = open_store(db)
-    create(store, fleet="f", bus="bus-01")
-    twin = Twin(store)
-    day = from_log_file(FLEET / "bus-01" / "2025-05-05.csv.gz")
-    twin.ingest("bus-01", day.iloc[:7200])
+    token = create(store, fleet="f", bus="bus-01")
+    store.engine.dispose()
+    day = from_log_file(FLEET / "bus-01" / "2025-05-05.csv.gz").iloc[:3700]
     with two_node_cluster(env) as address:
-        run = subprocess.run([sys.executable, "-c", RAY_DRIVER, str(db), address], env=env,
-                             capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr[-3000:]
-    out = json.loads(run.stdout.strip().splitlines()[-1])
-    assert out["nodes"] == 2
-    assert out["result"] is not None and out["result"]["nrmse"] < 0.05
-    fit = twin.bus("bus-01")["fits"]
-    assert len(fit) == 1 and fit[0]["kind"] == "window"
-    assert fit[0]["t_to"] == pytest.approx(float(day["t"].iloc[7199]))
-    assert set(fit[0]["values"]) >= {"auxiliaries.base_power_w", "static_rcd.rcd_frac"}
+        port = free_port()
+        proc = serve(str(db), port, "--ray", "--address", address, env=env)
+        try:
+            sender = Sender(f"http://127.0.0.1:{port}", "bus-01", token)
+            for part in batches_of(day, 600.0):
+                sender.batch(f"b{part['t'].iloc[0]:.0f}", part)
+            sender.close()
+            health = {}
+
+            def fitted():
+                health.update(httpx.get(f"http://127.0.0.1:{port}/healthz").json())
+                return health["jobs"]["ray"]["tasks"] >= 1 and health["jobs"]["waiting"] == 0
+
+            _until(fitted, 600)
+        finally:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=60)
+    assert health["jobs"]["ray"]["nodes"] == 2 and health["jobs"]["failed"] == 0, health
+    assert health["jobs"]["workers"] == 2  # one per CPU of the cluster
+    fit = Twin(open_store(db)).bus("bus-01")["fits"]
+    assert [f["kind"] for f in fit] == ["window"]
+    assert fit[0]["t_to"] == pytest.approx(float(day["t"].iloc[-1]))
+    assert fit[0]["nrmse"] < 0.05
+    assert set(fit[0]["values"]) >= {"auxiliaries.base_power_w", "passenger_load.load_frac"}

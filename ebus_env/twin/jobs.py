@@ -39,7 +39,9 @@ class JobSettings:
 
 
 class Jobs:
-    """Runs the jobs of buses that got data, one bus at a time per worker."""
+    """Runs the jobs of buses that got data, one bus at a time per worker thread. On Ray the
+    heavy parts are Ray tasks and there are as many workers as the cluster has CPUs (each
+    waits on its task), unless ``workers`` asks for more."""
 
     def __init__(self, twin, settings: JobSettings | None = None, ray: bool = False,
                  address: str | None = None, workers: int = 1):
@@ -52,6 +54,7 @@ class Jobs:
         self._stop = threading.Event()
         self.errors: list[str] = []
         self.done = 0
+        self.remote_tasks = 0  # heavy jobs run as Ray tasks
 
     def notify(self, bus: str, late: bool = False) -> None:
         """``bus`` has new data: look at it once the jobs before it are done."""
@@ -63,9 +66,12 @@ class Jobs:
 
     def start(self) -> None:
         if self.use_ray:
+            import ray
+
             from ebus_env.twin.ray_jobs import connect
 
             connect(self.address)
+            self.workers = max(self.workers, int(ray.cluster_resources().get("CPU", 1)))
         for i in range(self.workers):
             th = threading.Thread(target=self._loop, name=f"twin-jobs-{i}", daemon=True)
             th.start()
@@ -77,6 +83,19 @@ class Jobs:
             self._queue.put(None)
         for th in self._threads:
             th.join(timeout=30)
+
+    def status(self) -> dict:
+        """What the jobs are doing: buses waiting, jobs done, failures, the Ray cluster."""
+        out = {"waiting": len(self._pending), "done": self.done, "failed": len(self.errors),
+               "last_failure": self.errors[-1] if self.errors else None,
+               "workers": self.workers, "ray": None}
+        if self.use_ray:
+            import ray
+
+            out["ray"] = {"nodes": sum(n["Alive"] for n in ray.nodes()),
+                          "cpus": ray.cluster_resources().get("CPU", 0.0),
+                          "tasks": self.remote_tasks}
+        return out
 
     def idle(self) -> bool:
         with self._lock:
@@ -128,4 +147,6 @@ class Jobs:
             return fn(*args)
         from ebus_env.twin.ray_jobs import run_remote
 
-        return run_remote(fn, *args)
+        result = run_remote(fn, *args)
+        self.remote_tasks += 1
+        return result

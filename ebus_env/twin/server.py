@@ -153,7 +153,10 @@ def create_app(twin: Twin, *, mqtt=None, jobs=None) -> FastAPI:
 
     @app.get("/healthz", tags=["service"])
     def healthz():
-        return {"ok": True, "time": time.time()}
+        """Up, and what its writer and jobs have done (none: an ingest-only process)."""
+        return {"ok": True, "time": time.time(),
+                "writer": {"commits": twin.writer.groups, "batches": twin.writer.batches},
+                "jobs": None if jobs is None else jobs.status()}
 
     @app.post("/v1/buses/{bus}/samples", tags=["ingest"], openapi_extra=BATCH_BODY)
     async def post_samples(bus: str, request: Request, response: Response, g: Auth,
