@@ -87,14 +87,20 @@ def finding(diagnosis) -> str:
 def diagnose_task(day_frame: pd.DataFrame, reference_frame: pd.DataFrame | None,
                   values: dict, bus_config: str, dt_s: float) -> dict:
     """The diagnosis of one day (here or as a Ray task): its verdict, status, why, sentence
-    and the twin's finding."""
+    and the twin's finding. The bus starts from the twin's fitted ``values`` except the
+    bus-to-bus parameters (:func:`~ebus_env.diagnostics.ladder.nuisance_ranges`): the
+    diagnosis fits those itself, in a fleet's spread around the configured bus (its ranges are
+    factors of the starting value: centred on the twin's own fit they would drift with it,
+    and a fitted zero would leave no range at all)."""
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose
+    from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
     from ebus_env.twin.refit import profiles_of
 
     bus = load_bus(bus_config)
-    if values:
-        bus = bus.overlay(_overlay(values), "the twin's last fit")
+    own = {k: v for k, v in values.items() if k not in NUISANCE and k not in RESOLVED_BY_CURRENT}
+    if own:
+        bus = bus.overlay(_overlay(own), "the twin's last fit")
     profiles = profiles_of(day_frame, dt_s, "day")
     reference = profiles_of(reference_frame, dt_s, "reference") \
         if reference_frame is not None else None
