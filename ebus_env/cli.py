@@ -58,7 +58,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 # Modules of this package that add commands, each through its register(app): one a line.
 COMMAND_MODULES: tuple[str, ...] = (
     "ebus_env.depot.depot_command",  # ebus depot
-    "ebus_env.twin_cli",  # ebus twin
+    "ebus_env.twin.twin_command",  # ebus twin
 )
 
 _run, _console = run_command, console  # the names command modules imported from here before

@@ -22,7 +22,7 @@ LAYERS = (  # lowest first; a module may import its own layer and those below
     ("ebus_env.console", "ebus_env.demo"),
     ("ebus_env.study", "ebus_env.depot"),
     ("ebus_env.twin",),
-    ("ebus_env.cli", "ebus_env.twin_cli"),
+    ("ebus_env.cli",),
     ("agents",),
 )
 INNER = {  # layers inside a package, the same way

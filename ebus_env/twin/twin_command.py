@@ -1,4 +1,8 @@
-"""``ebus twin``: serve the fleet's live twin, manage its tokens, replay logs into it."""
+"""``ebus twin``: serve the fleet's live twin, manage its tokens, replay logs into it.
+
+``register(app)`` adds the group to the ``ebus`` typer app (``ebus_env.cli`` names this module
+in its ``COMMAND_MODULES``). Imported at ``ebus`` start-up: only typer, the standard library
+and :mod:`ebus_env.cli_options` at the top; each command imports its work when it runs."""
 
 from __future__ import annotations
 
@@ -7,6 +11,8 @@ from typing import Annotated
 
 import typer
 
+from ebus_env.cli_options import BusOpt, console, run_command
+
 twin_app = typer.Typer(no_args_is_help=True, help="The fleet's live digital twin: serve it, "
                                                  "give tokens, replay logs into it.")
 token_app = typer.Typer(no_args_is_help=True, help="Access tokens (stored hashed).")
@@ -14,18 +20,6 @@ twin_app.add_typer(token_app, name="token")
 
 DbOpt = Annotated[str, typer.Option(
     "--db", help="The store: an SQLite file (default twin.sqlite) or postgresql://user@host/db")]
-
-
-def _run(body):
-    from ebus_env.cli import _run as run
-
-    run(body)
-
-
-def _console():
-    from ebus_env.cli import _console as console
-
-    return console()
 
 
 @twin_app.command()
@@ -43,8 +37,7 @@ def serve(
              "only, for extra ingest processes)")] = True,
     use_ray: Annotated[bool, typer.Option("--ray", help="Run the jobs on Ray")] = False,
     address: Annotated[str | None, typer.Option(help="Join the Ray cluster at host:port")] = None,
-    bus_config: Annotated[str, typer.Option("--bus", help="Bus config the model of every bus "
-                                                          "starts from")] = "12m",
+    bus_config: BusOpt = "12m",  # the model every bus's starts from
     keep_raw_days: Annotated[float, typer.Option(
         help="Keep raw 1 Hz samples this many days, then 1-min aggregates")] = 30.0,
 ):
@@ -72,10 +65,10 @@ def serve(
             password = mqtt_password_file.read_text().strip() if mqtt_password_file else None
             subscriber = Subscriber(twin, mqtt, mqtt_user, password)
         app = create_app(twin, mqtt=subscriber, jobs=runner)
-        _console().print(f"twin on http://{host}:{port}/ (store {store})")
+        console().print(f"twin on http://{host}:{port}/ (store {store})")
         uvicorn.run(app, host=host, port=port, log_level="warning")
 
-    _run(body)
+    run_command(body)
 
 
 @token_app.command("create")
@@ -103,7 +96,7 @@ def token_create(
                        reserve_soc_pct=reserve_soc_pct)
         print(token)
 
-    _run(body)
+    run_command(body)
 
 
 @twin_app.command()
@@ -130,11 +123,11 @@ def replay(
                               "--fleet NAME --bus ID), or set EBUS_TWIN_TOKEN")
         counts = run(logs, bus, url, token, parse_speed(speed), batch_s,
                      limit_s=None if limit_min is None else 60.0 * limit_min)
-        _console().print(f"{bus}: {counts['batches']} batches, {counts['samples']} samples "
+        console().print(f"{bus}: {counts['batches']} batches, {counts['samples']} samples "
                          f"stored, {counts['duplicates']} duplicates, {counts['schedules']} "
                          "blocks")
 
-    _run(body)
+    run_command(body)
 
 
 @twin_app.command()
@@ -150,9 +143,9 @@ def retain(
         from ebus_env.twin.store import open_store
 
         done = reduce_old(open_store(db), keep_raw_days)
-        _console().print(f"{done['samples']} samples reduced to {done['minutes']} 1-min rows")
+        console().print(f"{done['samples']} samples reduced to {done['minutes']} 1-min rows")
 
-    _run(body)
+    run_command(body)
 
 
 @twin_app.command()
@@ -194,7 +187,7 @@ def demo(
         threading.Thread(target=server.run, daemon=True).start()
         while not server.started:
             time.sleep(0.1)
-        _console().print(f"dashboard: http://127.0.0.1:{port}/?fleet=demo&token={read}")
+        console().print(f"dashboard: http://127.0.0.1:{port}/?fleet=demo&token={read}")
         factor = parse_speed(speed)
         threads = [threading.Thread(target=run, daemon=True, args=(
             sorted((fleet / bus).glob("*.csv.gz")), bus, f"http://127.0.0.1:{port}",
@@ -204,11 +197,11 @@ def demo(
         for th in threads:
             th.join()
         for row in twin.fleet("demo"):
-            _console().print(f"{row['bus']}: SoC {row['soc_pct']} %, {row['alarms']} alarm(s)"
+            console().print(f"{row['bus']}: SoC {row['soc_pct']} %, {row['alarms']} alarm(s)"
                              f" {row['latest_alarm'] or ''}", soft_wrap=True)
         server.should_exit = True
 
-    _run(body)
+    run_command(body)
 
 
 def register(app: typer.Typer) -> None:
