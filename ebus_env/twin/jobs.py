@@ -48,7 +48,9 @@ class Jobs:
         self.twin, self.settings = twin, settings or JobSettings()
         self.use_ray, self.address, self.workers = ray, address, workers
         self._queue: queue.Queue = queue.Queue()
-        self._pending: set[str] = set()
+        self._pending: set[str] = set()  # buses queued
+        self._running: set[str] = set()  # buses a worker is on (one worker a bus)
+        self._again: set[str] = set()  # buses that got data while a worker was on them
         self._lock = threading.Lock()
         self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
@@ -86,7 +88,9 @@ class Jobs:
 
     def status(self) -> dict:
         """What the jobs are doing: buses waiting, jobs done, failures, the Ray cluster."""
-        out = {"waiting": len(self._pending), "done": self.done, "failed": len(self.errors),
+        with self._lock:
+            busy = len(self._pending | self._running | self._again)
+        out = {"waiting": busy, "done": self.done, "failed": len(self.errors),
                "last_failure": self.errors[-1] if self.errors else None,
                "workers": self.workers, "ray": None}
         if self.use_ray:
@@ -99,7 +103,7 @@ class Jobs:
 
     def idle(self) -> bool:
         with self._lock:
-            return not self._pending
+            return not (self._pending or self._running or self._again)
 
     def wait(self, timeout_s: float = 600.0) -> None:
         """Block until every bus notified so far has been looked at (tests, benchmarks)."""
@@ -116,12 +120,22 @@ class Jobs:
                 return
             with self._lock:
                 self._pending.discard(bus)
+                if bus in self._running:  # another worker is on it: once more after it
+                    self._again.add(bus)
+                    continue
+                self._running.add(bus)
             try:
                 self.run_bus(bus)
             except Exception as exc:  # a job's failure must not stop the others
                 log.exception("twin job of %s failed", bus)
                 self.errors.append(f"{bus}: {type(exc).__name__}: {exc}")
-            self.done += 1
+            with self._lock:
+                self.done += 1
+                self._running.discard(bus)
+                again = bus in self._again
+                self._again.discard(bus)
+            if again:
+                self.notify(bus)
 
     def run_bus(self, bus: str) -> None:
         """Everything due for ``bus``: close finished days (and fit and diagnose them), re-fit
