@@ -84,47 +84,46 @@ def finding(diagnosis) -> str:
     return "nothing missing"
 
 
-def diagnose_task(day_frame: pd.DataFrame, reference_frame: pd.DataFrame | None,
-                  values: dict, bus_config: str, dt_s: float) -> dict:
-    """The diagnosis of one day (here or as a Ray task): its verdict, status, why, sentence
-    and the twin's finding. The bus starts from the twin's fitted ``values`` except the
-    bus-to-bus parameters (:func:`~ebus_env.diagnostics.ladder.nuisance_ranges`): the
-    diagnosis fits those itself, in a fleet's spread around the configured bus (its ranges are
-    factors of the starting value: centred on the twin's own fit they would drift with it,
-    and a fitted zero would leave no range at all)."""
+def reference_task(reference_frame: pd.DataFrame, bus_config: str, dt_s: float):
+    """The bus's normal day as the diagnosis measures it (here or as a Ray task): its
+    calibrated bus-to-bus values and the power its model misses per operating mode
+    (:class:`ebus_env.diagnostics.normal_day.Reference`), once per bus and reused for each of
+    its later days; None when the day holds no profile."""
     from ebus_env.config import load_bus
-    from ebus_env.diagnostics import diagnose
-    from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
+    from ebus_env.diagnostics.diagnose import reference_stage
     from ebus_env.twin.refit import profiles_of
 
-    bus = load_bus(bus_config)
-    own = {k: v for k, v in values.items() if k not in NUISANCE and k not in RESOLVED_BY_CURRENT}
-    if own:
-        bus = bus.overlay(_overlay(own), "the twin's last fit")
+    profiles = profiles_of(reference_frame, dt_s, "reference")
+    if not profiles:
+        return None
+    return reference_stage(load_bus(bus_config), profiles, None, None, None, None)
+
+
+def diagnose_task(day_frame: pd.DataFrame, reference,
+                  bus_config: str, dt_s: float) -> dict:
+    """The diagnosis of one day (here or as a Ray task): its verdict, status, why, sentence
+    and the twin's finding. It starts from the configured bus, not from the twin's fits: it
+    calibrates the bus itself, its bus-to-bus parameters within a fleet's spread around the
+    configured values, and the bus's normal day (``reference``, from :func:`reference_task`;
+    None: none) says what this bus misses on any day. (Started from the twin's fits, its
+    ranges, factors of the starting values, would drift with them, and the within-day values
+    of a window re-fit belong to another day.)"""
+    from ebus_env.config import load_bus
+    from ebus_env.diagnostics import diagnose
+    from ebus_env.twin.refit import profiles_of
+
     profiles = profiles_of(day_frame, dt_s, "day")
-    reference = profiles_of(reference_frame, dt_s, "reference") \
-        if reference_frame is not None else None
     if not profiles:
         return {"verdict": None, "status": "too little data", "why": "the day has no "
                 "stretch of an hour or more with SoC", "sentence": "", "finding": "no data"}
-    d = diagnose(bus, profiles, calibrate=True, reference=reference or None)
+    d = diagnose(load_bus(bus_config), profiles, calibrate=True, reference=reference)
     return {"verdict": d.verdict, "status": d.status, "why": d.why, "sentence": d.sentence,
             "finding": finding(d)}
-
-
-def _overlay(values: dict) -> dict:
-    out: dict[str, dict] = {}
-    for name, value in values.items():
-        effect, param = name.split(".", 1)
-        out.setdefault(effect, {})[param] = float(value)
-    return {"params": out}
 
 
 def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
     """Diagnose ``bus``'s finished ``day``; alarm when its finding differs from the bus's
     usual one."""
-    from ebus_env.twin.refit import latest_values
-
     bus_id = twin.bus_id(bus)
     with twin.store.engine.connect() as conn:
         days = conn.execute(sa.select(days_table).where(days_table.c.bus_id == bus_id)
@@ -136,10 +135,20 @@ def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
     this = next(d for d in days if d.day == day)
     reference = days[0] if days[0].day != day else None
     frame = twin.samples(bus, this.t_start, this.t_end)
-    ref_frame = twin.samples(bus, reference.t_start, reference.t_end) if reference else None
     run = runner or (lambda fn, *a: fn(*a))
-    values = latest_values(twin, bus_id, before_t=this.t_start)
-    result = run(diagnose_task, frame, ref_frame, values, settings.bus_config, settings.dt_s)
+    normal = None
+    if reference is None:  # the normal day itself (again, after a late batch): measured anew
+        twin.reference_cache.pop(bus, None)
+    else:
+        key = (reference.t_start, reference.t_end, settings.bus_config)
+        cached = twin.reference_cache.get(bus)
+        if cached is None or cached[0] != key:  # measured once per bus and process
+            cached = (key, run(reference_task, twin.samples(bus, reference.t_start,
+                                                            reference.t_end),
+                               settings.bus_config, settings.dt_s))
+            twin.reference_cache[bus] = cached
+        normal = cached[1]
+    result = run(diagnose_task, frame, normal, settings.bus_config, settings.dt_s)
     usual = first.finding if first is not None and first.day < day else None
     with twin.store.engine.begin() as conn:
         conn.execute(diagnoses.delete().where(diagnoses.c.bus_id == bus_id,

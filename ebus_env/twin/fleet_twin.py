@@ -55,6 +55,8 @@ class Twin:
         self.stale_after_s = stale_after_s
         self._ids: dict[str, int] = {}
         self.trip_cache: dict[str, tuple] = {}  # forecast's trips per bus (its live state)
+        # each bus's normal day as the diagnosis measured it (closed_days; a few kB a bus)
+        self.reference_cache: dict[str, tuple] = {}
         self.writer = GroupWriter(store, clock, self._committed)
 
     # ------------------------------------------------------------------ data in
