@@ -7,9 +7,11 @@ A bus's samples are cut into service days by the depot's rule
 has begun, or once the bus has stood ``day_end_idle_min`` after its last move with its logger
 on. It is named by the UTC date of its first sample.
 
-Each finished day is diagnosed with :func:`ebus_env.diagnostics.diagnose` (the bus as its
-last fit left it, calibrated on the day, against the bus's first finished day as its normal
-day). The adapter reads only the public ``verdict``, ``status`` and ``why`` of the diagnosis.
+The bus's first finished day is its *normal day*: the diagnosis measures it once
+(:func:`reference_task`: its calibrated bus-to-bus values and the power its model misses per
+operating mode), and every later finished day is diagnosed with
+:func:`ebus_env.diagnostics.diagnose` against it (the configured bus, calibrated on the day).
+The adapter reads only the public ``verdict``, ``status`` and ``why`` of the diagnosis.
 A day's *finding* is the named effect, or "outside library" when no library effect explains
 the missing power (with the operating mode where it is missing, the diagnosis's
 ``mode_clue``, when it names one), or "nothing missing". A finding that differs from the bus's
@@ -121,6 +123,22 @@ def diagnose_task(day_frame: pd.DataFrame, reference,
             "finding": finding(d)}
 
 
+def normal_day_result(normal) -> dict:
+    """What the bus's first day, its normal day, shows on its page: what its calibrated model
+    misses there, against which its later days are diagnosed."""
+    if normal is None:
+        return {"verdict": None, "status": "too little data", "why": "the day has no stretch "
+                "of an hour or more with SoC: the next day is diagnosed without a normal day",
+                "sentence": "", "finding": "no data"}
+    missing = ", ".join(f"{m['missing_kw']:.1f} kW {m['mode']}"
+                        for m in normal.to_json()["missing_by_mode"])
+    why = (f"the bus's normal day: its later days are diagnosed against it. Calibrated on "
+           f"it, the model's held-out NRMSE is {normal.held_out_nrmse:.4f}; the power it "
+           f"misses by operating mode: {missing or 'none measured'}")
+    return {"verdict": None, "status": "normal day", "why": why, "sentence": why[0].upper()
+            + why[1:] + ".", "finding": "normal day"}
+
+
 def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
     """Diagnose ``bus``'s finished ``day``; alarm when its finding differs from the bus's
     usual one."""
@@ -136,19 +154,20 @@ def diagnose_day(twin, bus: str, day: str, settings, runner=None) -> dict:
     reference = days[0] if days[0].day != day else None
     frame = twin.samples(bus, this.t_start, this.t_end)
     run = runner or (lambda fn, *a: fn(*a))
-    normal = None
-    if reference is None:  # the normal day itself (again, after a late batch): measured anew
-        twin.reference_cache.pop(bus, None)
+    first_day = days[0]
+    key = (first_day.t_start, first_day.t_end, settings.bus_config)
+    cached = twin.reference_cache.get(bus)
+    if reference is None or cached is None or cached[0] != key:
+        # measured once per bus and process (again when a late batch changed it)
+        frame0 = frame if reference is None else twin.samples(bus, first_day.t_start,
+                                                              first_day.t_end)
+        cached = (key, run(reference_task, frame0, settings.bus_config, settings.dt_s))
+        twin.reference_cache[bus] = cached
+    normal = cached[1]
+    if reference is None:
+        result = normal_day_result(normal)
     else:
-        key = (reference.t_start, reference.t_end, settings.bus_config)
-        cached = twin.reference_cache.get(bus)
-        if cached is None or cached[0] != key:  # measured once per bus and process
-            cached = (key, run(reference_task, twin.samples(bus, reference.t_start,
-                                                            reference.t_end),
-                               settings.bus_config, settings.dt_s))
-            twin.reference_cache[bus] = cached
-        normal = cached[1]
-    result = run(diagnose_task, frame, normal, settings.bus_config, settings.dt_s)
+        result = run(diagnose_task, frame, normal, settings.bus_config, settings.dt_s)
     usual = first.finding if first is not None and first.day < day else None
     with twin.store.engine.begin() as conn:
         conn.execute(diagnoses.delete().where(diagnoses.c.bus_id == bus_id,
