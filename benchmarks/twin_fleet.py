@@ -9,8 +9,9 @@ writes, per bus and day, ``<bus>/<date>.csv.gz`` (a degraded 1 Hz telematics log
 columns of :mod:`benchmarks.truth.degrade`) and ``<bus>/<date>.block.json`` (the day's block
 in the hand-written form of :mod:`ebus_env.blocks`: its trips as the King County route
 directions they drive, ``kc7_out``..., at the times the bus kept, and the terminal chargers
-it meets), and ``fleet.json`` (the truth: each bus's base parameters, its fault and the day it
-starts, each day's summary).
+it meets, on the local clock of the logs' time stamps, its ``timezone``), and ``fleet.json``
+(the truth: each bus's base parameters, its fault and the day it starts, each day's
+summary).
 
 Each day runs the bus's route out and back from ``start`` for ``hours``, ending with its last
 whole trip; after service the bus stands at the depot for :data:`DEPOT_MIN` minutes (its
@@ -129,7 +130,8 @@ def block(plan: pd.DataFrame, bus: str, fb: FleetBus) -> dict:
     for t in trips:
         del t["_end"]
     stops = (f"kc{number}_A", f"kc{number}_B")
-    return {"block_id": f"{bus} {plan.attrs['date']}", "trips": trips,
+    return {"timezone": plan.attrs.get("timezone", "UTC"),  # the logs' local clock
+            "block_id": f"{bus} {plan.attrs['date']}", "trips": trips,
             "chargers": {stops[k]: {"count": 1, "power_kw": fb.charger_kw}
                          for k in fb.charger_terminals}}
 
