@@ -33,7 +33,7 @@ from ebus_env.twin.schedule import DayBlock, read_block, read_stored, trip_key
 from ebus_env.twin.store import alarms, buses, predictions, schedules
 
 MEMBERS = 12
-MODEL_ERROR = 0.08
+MODEL_ERROR = 0.035
 """The model's error [1 sigma] per SoC point the battery still moves (set by
 ``python -m benchmarks.bench_twin`` on buses it does not report on)."""
 Z90 = 1.645
