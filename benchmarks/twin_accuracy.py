@@ -42,7 +42,7 @@ def replay_bus(fleet: Path, bus: str, out: Path, days: int | None = None,
     """The bus's first ``days`` days (all by default) through the twin's fits into
     ``out/<bus>.sqlite`` (see the module docstring; the days from ``test_from`` on are
     predicted); returns their midpoints and what each fit cost [s of wall time]."""
-    from ebus_env.twin import Twin, closed_days, open_store, refit
+    from ebus_env.twin import Twin, bus_refit, closed_days, open_store
     from ebus_env.twin.ingest import from_log_file
     from ebus_env.twin.jobs import JobSettings
     from ebus_env.twin.schedule import read_block
@@ -72,7 +72,7 @@ def replay_bus(fleet: Path, bus: str, out: Path, days: int | None = None,
             first = frame[frame["t"] <= t_half]
             twin.ingest(bus, first)
             t0 = time.perf_counter()
-            refit.maybe_refit(twin, bus, settings)
+            bus_refit.maybe_refit(twin, bus, settings)
             info["window_s"].append(time.perf_counter() - t0)
             info["halves"][day] = float(first["t"].iloc[-1])
             frame = frame[frame["t"] > t_half]
@@ -81,7 +81,7 @@ def replay_bus(fleet: Path, bus: str, out: Path, days: int | None = None,
             break  # no prediction needs the last day's fit
         for closed in closed_days.close_days(twin, bus, settings):
             t0 = time.perf_counter()
-            refit.cross_day_fit(twin, bus, closed, settings)
+            bus_refit.cross_day_fit(twin, bus, closed, settings)
             info["cross_day_s"].append(time.perf_counter() - t0)
     twin.close()
     store.engine.dispose()

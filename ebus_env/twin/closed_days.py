@@ -54,7 +54,7 @@ def finished_days(t: np.ndarray, speed_kmh: np.ndarray, rule: DayRule
 
 def close_days(twin, bus: str, settings) -> list[str]:
     """Close the bus's finished days; returns their names."""
-    from ebus_env.twin.refit import open_day_start
+    from ebus_env.twin.bus_refit import open_day_start
 
     bus_id = twin.bus_id(bus)
     start = open_day_start(twin, bus_id)
@@ -92,8 +92,8 @@ def reference_task(reference_frame: pd.DataFrame, bus_config: str, dt_s: float):
     (:class:`ebus_env.diagnostics.normal_day.Reference`), once per bus and reused for each of
     its later days; None when the day holds no profile."""
     from ebus_env.config import load_bus
-    from ebus_env.diagnostics.diagnose import reference_stage
-    from ebus_env.twin.refit import profiles_of
+    from ebus_env.diagnostics.stage02_reference import reference_stage
+    from ebus_env.twin.bus_refit import profiles_of
 
     profiles = profiles_of(reference_frame, dt_s, "reference")
     if not profiles:
@@ -112,7 +112,7 @@ def diagnose_task(day_frame: pd.DataFrame, reference,
     of a window re-fit belong to another day.)"""
     from ebus_env.config import load_bus
     from ebus_env.diagnostics import diagnose
-    from ebus_env.twin.refit import profiles_of
+    from ebus_env.twin.bus_refit import profiles_of
 
     profiles = profiles_of(day_frame, dt_s, "day")
     if not profiles:

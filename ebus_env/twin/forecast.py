@@ -6,7 +6,7 @@ the model's inputs: each remaining trip drives the speed trace of a trip of the 
 direction the bus has driven (today's or an earlier day's, stretched to the planned
 duration); between trips the bus stands, on a charger during the planned sessions; the
 ambient is the last measured. The bus's model with its newest fitted values
-(:func:`~ebus_env.twin.refit.latest_values`) runs it from the measured SoC.
+(:func:`~ebus_env.twin.bus_refit.latest_values`) runs it from the measured SoC.
 
 The point prediction drives the most recent trip of each direction. The band runs
 :data:`MEMBERS` members, each drawing every remaining trip from the bus's past trips of that
@@ -259,8 +259,8 @@ def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: b
     along ``schedule`` (a block, :mod:`ebus_env.twin.schedule`; default: the one stored for
     the day); ``model_error``: the band's :data:`MODEL_ERROR`."""
     from ebus_env.profile import Profile
+    from ebus_env.twin.bus_refit import bus_model, latest_values
     from ebus_env.twin.jobs import JobSettings
-    from ebus_env.twin.refit import bus_model, latest_values
 
     settings = settings or JobSettings()
     bus_id = twin.bus_id(bus)
@@ -390,8 +390,8 @@ def energy_tomorrow(twin, bus: str, settings=None) -> dict:
     """The battery energy [kWh] the bus's newest stored block needs, without its chargers:
     its trips driven with the bus's newest fitted model (the depot must put it in)."""
     from ebus_env.profile import Profile
+    from ebus_env.twin.bus_refit import bus_model, latest_values
     from ebus_env.twin.jobs import JobSettings
-    from ebus_env.twin.refit import bus_model, latest_values
 
     settings = settings or JobSettings()
     bus_id = twin.bus_id(bus)

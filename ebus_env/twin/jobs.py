@@ -1,5 +1,5 @@
 """The twin's jobs: after new data, each bus's service days are tracked, its model re-fitted
-(:mod:`ebus_env.twin.refit`), a finished day diagnosed (:mod:`ebus_env.twin.closed_days`)
+(:mod:`ebus_env.twin.bus_refit`), a finished day diagnosed (:mod:`ebus_env.twin.closed_days`)
 and its block's SoC predicted (:mod:`ebus_env.twin.forecast`).
 
 They run in a thread of the twin's process, or on Ray (``--ray [--address]``): the heavy
@@ -140,18 +140,18 @@ class Jobs:
     def run_bus(self, bus: str) -> None:
         """Everything due for ``bus``: close finished days (and fit and diagnose them), re-fit
         its window, predict its block."""
-        from ebus_env.twin import closed_days, forecast, refit
+        from ebus_env.twin import bus_refit, closed_days, forecast
 
         closed = closed_days.close_days(self.twin, bus, self.settings)
         for day in closed:
             self._day_job(bus, day)
-        refit.maybe_refit(self.twin, bus, self.settings, runner=self.remote)
+        bus_refit.maybe_refit(self.twin, bus, self.settings, runner=self.remote)
         forecast.maybe_predict(self.twin, bus, self.settings)
 
     def _day_job(self, bus: str, day: str) -> None:
-        from ebus_env.twin import closed_days, refit
+        from ebus_env.twin import bus_refit, closed_days
 
-        refit.cross_day_fit(self.twin, bus, day, self.settings, runner=self.remote)
+        bus_refit.cross_day_fit(self.twin, bus, day, self.settings, runner=self.remote)
         if self.settings.diagnose:
             closed_days.diagnose_day(self.twin, bus, day, self.settings, runner=self.remote)
 
