@@ -312,11 +312,16 @@ def test_batches_waiting_for_a_commit_are_committed_together_and_answered_after_
     twin = Twin(store)
     other = _held_by_another_writer(tmp_path / "t.sqlite")
     first = twin.submit("b0", payload.batch(pd.DataFrame(samples(10)), "x0"))
+    import time
+
+    for _ in range(6000):  # the writer takes it and waits on the lock with it alone
+        if twin.writer.queued == 0:
+            break
+        time.sleep(0.01)
+    time.sleep(0.2)  # past the writer's look for more batches to group with it
     rest = [twin.submit(f"b{i}", payload.batch(pd.DataFrame(samples(10, T0 + 10 * i)), "x"))
             for i in range(1, 6)]
     rest.append(twin.submit("b1", payload.batch(pd.DataFrame(samples(10, T0 + 10)), "x")))
-    import time
-
     time.sleep(0.5)
     # nothing is answered before its commit
     assert not first.done() and not any(f.done() for f in rest)

@@ -113,6 +113,11 @@ class GroupWriter:
         self._queue.put(_Item(bus, bus_id, batch, future))
         return future
 
+    @property
+    def queued(self) -> int:
+        """Batches waiting for the writer to take them (not those of the group it writes)."""
+        return self._queue.qsize()
+
     def _start(self) -> None:
         if self._thread is not None and self._thread.is_alive():
             return
