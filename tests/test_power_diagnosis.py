@@ -160,7 +160,7 @@ def test_a_folder_of_logs_reads_as_its_days_in_order(tmp_path):
     assert [p.name for p in logs_in([days, other])] == [
         "2026-01-14.csv.gz", "2026-01-15.csv", "2026-01-16.parquet", "extra.csv"]
     (tmp_path / "empty").mkdir()
-    with pytest.raises(ConfigError, match="empty: a folder without logs"):
+    with pytest.raises(ConfigError, match="empty: no logs in the folder"):
         logs_in([tmp_path / "empty"])
 
 

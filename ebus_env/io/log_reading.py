@@ -34,7 +34,7 @@ def logs_in(paths, option: str = "LOGS") -> list[Path]:
             continue
         logs = sorted({p for pattern in LOG_PATTERNS for p in path.glob(pattern)})
         if not logs:
-            raise ConfigError(f"{option} {path}: a folder without logs "
+            raise ConfigError(f"{option} {path}: no logs in the folder "
                               f"({', '.join(LOG_PATTERNS)}); give the folder of the logs, or "
                               "the logs themselves.")
         out += logs
