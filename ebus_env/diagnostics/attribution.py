@@ -289,8 +289,8 @@ def attribute(missing_w: np.ndarray, noise_w: np.ndarray, candidates, usable: np
         return Decision(ranking, selected, None, (
             f"the missing power is at the noise level ({standing(significance)} it): the model "
             "explains these data"), significance, "noise")
-    # a day with nothing wrong ends here too: a calibrated model of another make of bus
-    # misses power beyond the log's noise (59 of 60 control days of the validation bench)
+    # a day with nothing wrong can end here too: a calibrated model of another make of bus
+    # misses power beyond the log's noise (docs/validation.md counts the control days)
     outside = ("no library effect explains the missing power on held-out windows{}: a load "
                "or loss the library lacks, or where this bus differs from the calibrated model "
                "(a day with nothing wrong ends the same way); the clues and the operating modes "

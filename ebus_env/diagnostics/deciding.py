@@ -9,9 +9,9 @@ Each entry below names only what the diagnosis then uses: a logged load is repla
 (``replayed_load`` becomes a candidate, and its ``scale`` says how much of it the pack
 supplies), a logged current and voltage give the pack's resistance over the day and free the
 brake-blending share, passenger counts drive the passenger mass, altitude gives the grade.
-Where the log has them all, nothing is asked: holding the bus's weighed curb mass, for one,
-did not name passenger mass on more bench days (the rolling resistance and drivetrain
-efficiency took up the mean load instead; docs/validation.md).
+Where the log has them all, nothing is asked. A weighed curb mass is not asked for: held, it
+leaves the mean passenger load to the rolling resistance and drivetrain efficiency instead
+(docs/validation.md).
 """
 
 from __future__ import annotations

@@ -17,9 +17,10 @@ day of the same bus, the diagnosis
        sigma'(w)^2   = sigma(w)^2 + s(w) C s(w)^T
 
    The mode table, the bins and the mode clue are then relative to the reference. The
-   attribution keeps the missing power itself (with the gap taken off there too, fewer hidden
-   effects were named right on the truth bench: the bus-to-bus search near the reference's
-   values is what it gains).
+   attribution keeps the missing power itself: what it gains from the reference is the
+   bus-to-bus search near the reference's values, and taking the gap off there as well would
+   take off part of the effect a day adds to the normal one (docs/diagnostics.md, "Against a
+   normal day of the same bus").
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ a shape that fitted the windows only by an implausible strength, or by what the 
 parameters had taken up, ends at a bound or lowers no error there. An effect is named
 where it alone is a verdict by :func:`~ebus_env.diagnostics.refit.refit_ends` and the bus
 re-calibrated with it also predicts the held-out blocks better than the bus re-calibrated
-with the other: both conditions, since on the validation bench the first alone named a
-wrong effect whose rival ended just inside the bound margin but fitted as well. A strength
+with the other: both conditions, since a rival can end just inside the bound margin and
+fit as well, and the first alone would then name it. A strength
 a user holds is not re-fitted, and such a pair stays a tie.
 """
 
