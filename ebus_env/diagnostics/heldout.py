@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ebus_env.diagnostics.boxlsq import bounded_lstsq
+from ebus_env.diagnostics.residual import correlation_time
 
 FOLDS = 5
 
@@ -177,23 +178,7 @@ def noise_unit(residual: np.ndarray, w: np.ndarray) -> float:
     are not independent draws). Taken from the residuals of the model with the candidate, so
     that a large effect does not inflate the noise it is measured against."""
     r = residual * np.sqrt(w)
-    return float(np.mean(r * r)) * correlation_time(r)
-
-
-def correlation_time(x: np.ndarray, max_lag: int = 200) -> float:
-    """Integrated autocorrelation time of a series, in samples: 1 + 2 sum rho_k over the lags
-    before rho first falls below zero."""
-    x = x - np.mean(x)
-    var = float(np.dot(x, x))
-    if var <= 0 or len(x) < 3:
-        return 1.0
-    tau = 1.0
-    for k in range(1, min(max_lag, len(x) - 1)):
-        rho = float(np.dot(x[:-k], x[k:])) / var
-        if rho <= 0:
-            break
-        tau += 2.0 * rho
-    return tau
+    return float(np.mean(r * r)) * correlation_time(r, max_lag=200)
 
 
 def paired_z(gain: np.ndarray) -> float:
