@@ -215,6 +215,25 @@ def test_a_scenarios_days_split_over_threads_equal_one_run(tmp_path):
 
 
 # -- results on disk ---------------------------------------------------------------------------
+@pytest.mark.parametrize("workers, tasks, share", [(1, 2, 1), (2, 1, 2), (2, 2, 1),
+                                                    (4, 2, 2), (2, 5, 1)])
+def test_workers_mean_cpus_in_all_each_task_gets_its_share(workers, tasks, share,
+                                                           monkeypatch):
+    """--workers N: N threads in all, a task's own batches included (a task alone may split
+    its batches over all N; N tasks get one each)."""
+    from ebus_env.model.threads import default_threads, thread_budget
+    from ebus_env.study.backends import map_tasks
+
+    monkeypatch.setenv("EBUS_THREADS", "8")
+    seen: list[int] = []
+    map_tasks(default_threads, [()] * tasks, lambda _, got: seen.append(got), workers=workers)
+    assert seen == [share] * tasks
+    assert default_threads() == 8  # the caller's thread keeps the machine's count
+    with thread_budget(3):
+        assert default_threads() == 3
+    assert default_threads() == 8
+
+
 def test_rows_stream_per_scenario_and_resume_skips_finished(tmp_path):
     spec = load_study(small(**{"infrastructure.terminal_chargers": 2, "days.count": 1}))
     full = run_study(spec, tmp_path, say=lambda _: None)

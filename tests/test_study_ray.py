@@ -87,12 +87,14 @@ def _wait(ready, what: str, limit_s: float = 120.0) -> None:
 
 
 @pytest.mark.slow
-def test_a_worker_killed_mid_study_is_retried_and_the_table_is_complete(tmp_path):
+def test_a_worker_killed_mid_study_is_retried_and_the_table_is_complete(tmp_path,
+                                                                       monkeypatch):
     data = small(**{"infrastructure.terminal_chargers": [1, 2, 3],
                     "infrastructure.site_limit_kw": [400, 600], "days.count": 1})
     data["strategies"] = [{"name": "held", "policy": "study_faults:die_once"}]
     study = tmp_path / "study.yaml"
     study.write_text(yaml.safe_dump(data))
+    monkeypatch.syspath_prepend(str(TESTS))  # study_faults, also when this test runs alone
     undisturbed = run_study(load_study(study), tmp_path / "in_process", say=lambda _: None)
     marker = tmp_path / "killed"
     # the cluster's own token for every node and the driver: the machine may have none in

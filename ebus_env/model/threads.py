@@ -4,21 +4,49 @@ buses run in parallel on threads."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
+from contextlib import contextmanager
+from typing import Any
 
 _POOL: ThreadPoolExecutor | None = None
+_BUDGET = threading.local()  # this thread's share of the CPUs (thread_budget)
+
+
+def cpu_threads() -> int:
+    """Threads the machine offers: ``$EBUS_THREADS`` or the number of CPUs."""
+    return max(1, int(os.environ.get("EBUS_THREADS", os.cpu_count() or 1)))
 
 
 def default_threads() -> int:
-    """Threads for batched runs: ``$EBUS_THREADS`` or the number of CPUs."""
-    return max(1, int(os.environ.get("EBUS_THREADS", os.cpu_count() or 1)))
+    """Threads for batched runs: this thread's budget where one is set (a task that shares
+    the CPUs with others, :func:`thread_budget`), else :func:`cpu_threads`."""
+    return getattr(_BUDGET, "threads", None) or cpu_threads()
+
+
+@contextmanager
+def thread_budget(threads: int) -> Iterator[None]:
+    """Within the block, batched runs started on this thread use at most ``threads``
+    threads: a task on a pool of N workers gets its share, so that N workers mean N CPUs."""
+    before = getattr(_BUDGET, "threads", None)
+    _BUDGET.threads = max(1, int(threads))
+    try:
+        yield
+    finally:
+        _BUDGET.threads = before
+
+
+def call_with_threads(threads: int, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` within :func:`thread_budget` (a module-level function: Ray can ship it)."""
+    with thread_budget(threads):
+        return fn(*args)
 
 
 def _pool() -> ThreadPoolExecutor:
     global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=default_threads(), thread_name_prefix="ebus")
+    if _POOL is None:  # sized for the machine: a budget caps how many chunks go to it
+        _POOL = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="ebus")
     return _POOL
 
 

@@ -103,10 +103,15 @@ def map_tasks(task: Callable, args_list: list[tuple], on_result: Callable, *,
         return
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
-    from ebus_env.model.model import default_threads
+    from ebus_env.model.threads import call_with_threads, default_threads
 
-    with ThreadPoolExecutor(max_workers=workers or default_threads()) as pool:
-        futures = {pool.submit(task, *args): args for args in args_list}
+    workers = workers or default_threads()
+    # each task's share of the threads: a task's own batches may split over threads too, so
+    # --workers N uses N CPUs in all (one task: all N; N tasks or more: one each)
+    share = max(1, workers // min(workers, len(args_list)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(call_with_threads, share, task, *args): args
+                   for args in args_list}
         try:
             for future in as_completed(futures):
                 on_result(futures[future], future.result())
@@ -139,8 +144,11 @@ def _map_ray(task, args_list, on_result, address, workers) -> None:
     ours = ray is None or not ray.is_initialized()  # a runtime this call joins, it also leaves
     ray = connect_ray(address, workers)  # without Ray: the error that says how to install it
     try:
-        remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(task)
-        pending = {remote.remote(*args): args for args in args_list}
+        from ebus_env.model.threads import call_with_threads
+
+        # a task holds one CPU, so its batches run on one thread
+        remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(call_with_threads)
+        pending = {remote.remote(1, task, *args): args for args in args_list}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             on_result(pending.pop(ready[0]), ray.get(ready[0]))

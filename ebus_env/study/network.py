@@ -391,24 +391,13 @@ def day_draw(spec, day: int) -> dict:
             "passengers_fixed": g.passengers}
 
 
-def _threads() -> int:
-    """Threads for a day's blocks: one inside a Ray task (it holds one CPU), else every CPU
-    (``$EBUS_THREADS``)."""
-    import sys
-
-    from ebus_env.model.threads import default_threads
-
-    ray = sys.modules.get("ray")
-    if ray is not None and ray.is_initialized() and \
-            ray.get_runtime_context().worker.mode == ray.WORKER_MODE:
-        return 1
-    return default_threads()
-
-
 def network_rows(spec, scenario, days: list[int], workers: int | None = None) -> list[dict]:
     """The rows of a timetable scenario (an infrastructure option with a depot plan), one
-    per day, with costs. A day's physics is shared by the depot plans of one option."""
-    workers = workers or _threads()
+    per day, with costs. A day's physics is shared by the depot plans of one option. Its
+    blocks run on ``workers`` threads (None: this task's share, :func:`default_threads`)."""
+    from ebus_env.model.threads import default_threads
+
+    workers = workers or default_threads()
     study = network_study(spec)
     infra, costs = scenario.infrastructure, spec.costs
     terminals = len(study.terminals)
