@@ -295,6 +295,58 @@ def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
     assert abs(fc.end_soc_pct - truth_end) < 25.0  # the 12 m bus unfitted, as a sanity bound
 
 
+def test_an_evening_block_is_found_past_utc_midnight(tmp_path):
+    """A block's day is its own time zone's service day: the shipped Seattle block moved 8 h
+    later runs past midnight UTC, and the stored block of its day is still the one predicted."""
+    store = open_store(tmp_path / "t.sqlite")
+    create(store, fleet="demo", bus="bus-05")
+    twin = Twin(store)
+    folder = paths.here_or_shipped("data/twin_fleet/bus-05")
+    late = 8 * 3600.0
+
+    def later(clock: str) -> str:
+        h, m, sec = (int(x) for x in clock.split(":"))
+        s = h * 3600 + m * 60 + sec + int(late)
+        return f"{s // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}"  # past 24:00 is legal
+
+    block = json.loads((folder / "2025-05-06.block.json").read_text())
+    block["trips"] = [{**trip, "start": later(trip["start"]), "end": later(trip["end"])}
+                      for trip in block["trips"]]
+    store.put_schedule("bus-05", "2025-05-06", block)
+    day = from_log_file(folder / "2025-05-06.csv.gz").assign(t=lambda f: f["t"] + late)
+    half = day.iloc[: len(day) // 2]
+    assert pd.Timestamp(half["t"].iloc[-1], unit="s").date().isoformat() == "2025-05-07"
+    twin.ingest("bus-05", half.assign(t=pd.to_datetime(half["t"], unit="s")))
+    for schedule in (None, block):  # stored, or given to predict
+        fc = twin.predict("bus-05", schedule, band=False)
+        assert fc.day == "2025-05-06" and fc.trips_left > 0
+        assert fc.end_t > fc.t
+
+
+def test_the_ambient_ahead_is_the_day_before_moved_to_now_and_read_once(tmp_path):
+    from ebus_env.twin.forecast import ambient_ahead
+
+    store = open_store(tmp_path / "t.sqlite")
+    create(store, fleet="f", bus="b")
+    twin = Twin(store)
+    t = np.arange(T0 - 86400.0, T0 - 86400.0 + 8 * 3600.0)  # the day before, 8 h
+    course = 10.0 + 5.0 * np.sin(2 * np.pi * (t - t[0]) / (8 * 3600.0))
+    twin.ingest("b", pd.DataFrame({"t": pd.to_datetime(t, unit="s"), "speed_kmh": 0.0,
+                                   "soc_pct": 80.0, "ambient_degc": course}))
+    reads = []
+    samples = twin.samples
+    twin.samples = lambda *a, **k: reads.append(a) or samples(*a, **k)
+    ahead = ambient_ahead(twin, "b", T0 + 3600.0, 4 * 3600, now_degc=20.0)
+    # the day before's course from the same clock time, moved by today's level (+5 K at 1 h)
+    then = 10.0 + 5.0 * np.sin(2 * np.pi * (3600.0 + np.arange(4 * 3600)) / (8 * 3600.0))
+    assert np.abs(ahead - (then - then[0] + 20.0)).max() < 0.1
+    later = ambient_ahead(twin, "b", T0 + 2 * 3600.0, 3 * 3600, now_degc=20.0)
+    assert len(reads) == 1  # the later prediction of the block reads no sample again
+    assert later[0] == pytest.approx(20.0, abs=0.05)
+    # no day before: today's level throughout
+    assert np.all(ambient_ahead(twin, "b", T0 + 3 * 86400.0, 600, now_degc=7.0) == 7.0)
+
+
 def _held_by_another_writer(path):
     """An SQLite connection of another process's kind holding the write lock (BEGIN
     IMMEDIATE) until it commits: the twin's writer waits on it."""

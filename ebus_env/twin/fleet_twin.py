@@ -55,6 +55,8 @@ class Twin:
         self.stale_after_s = stale_after_s
         self._ids: dict[str, int] = {}
         self.trip_cache: dict[str, tuple] = {}  # forecast's trips per bus (its live state)
+        # forecast's ambient of the day before per bus: 1-min means of a span read once
+        self.ambient_cache: dict[str, tuple] = {}
         # each bus's normal day as the diagnosis measured it (closed_days; a few kB a bus)
         self.reference_cache: dict[str, tuple] = {}
         self.writer = GroupWriter(store, clock, self._committed)

@@ -74,6 +74,28 @@ def stored_block(twin, bus_id: int, day: str) -> DayBlock | None:
     return None if text is None else read_stored(text, day)
 
 
+def _days_around(t: float) -> list[str]:
+    """The service days whose block may run at ``t`` [UTC epoch s]: a block's day is its own
+    time zone's, which may not be the UTC date (an evening in America, a morning in Asia)."""
+    utc = pd.Timestamp(t, unit="s").normalize()
+    return [str((utc + pd.Timedelta(days=d)).date()) for d in (-1, 0, 1)]
+
+
+def _running(blocks: list[DayBlock], t: float) -> DayBlock | None:
+    """The block that runs at ``t``, else the last one that started before it."""
+    running = [b for b in blocks if b.start_s <= t < b.end_s]
+    started = [b for b in blocks if b.start_s <= t]
+    return running[0] if running else (max(started, key=lambda b: b.start_s)
+                                       if started else None)
+
+
+def block_at(twin, bus_id: int, t: float) -> DayBlock | None:
+    """The bus's stored block that runs at ``t``, else the last one that started before it
+    (None: none)."""
+    return _running([b for day in _days_around(t)
+                     if (b := stored_block(twin, bus_id, day)) is not None], t)
+
+
 @dataclass
 class History:
     """What the bus's own recent days tell its forecast: the traces of the trips it drove
@@ -179,21 +201,49 @@ def _fit_duration(trace: np.ndarray, n: int, from_frac: float = 0.0) -> np.ndarr
     return trace[:, pick]
 
 
+AMBIENT_BIN_S = 60.0  # the day before's ambient is kept as means of this many seconds
+SETTLED_S = 3600.0  # samples older than this are taken as complete (late batches aside)
+
+
+def _ambient_before(twin, bus: str, lo: float, hi: float, t: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The bus's measured ambient [degC] between ``lo`` and ``hi`` (both before ``t``) as
+    1-min means (time, value): read from the store once per bus and span, then from the
+    cache (a span that ended an hour before ``t`` no longer changes), so that a prediction
+    every few minutes does not read the same day again."""
+    cached = twin.ambient_cache.get(bus)
+    if cached is not None and cached[0] <= lo and hi <= cached[1]:
+        return cached[2], cached[3]
+    frame = twin.samples(bus, lo, hi, ("ambient_degc",)).dropna()
+    bins = np.floor(frame["t"].to_numpy(float) / AMBIENT_BIN_S)
+    keys, first, count = np.unique(bins, return_index=True, return_counts=True)
+    values = np.add.reduceat(frame["ambient_degc"].to_numpy(float), first) / count \
+        if len(first) else np.zeros(0)
+    times = np.add.reduceat(frame["t"].to_numpy(float), first) / count \
+        if len(first) else np.zeros(0)
+    if hi <= t - SETTLED_S:
+        twin.ambient_cache[bus] = (lo, hi, times, values)
+    return times, values
+
+
 def ambient_ahead(twin, bus: str, t: float, n: int, now_degc: float | None) -> np.ndarray:
     """The ambient [degC] over the ``n`` seconds after ``t``: the bus's own measurement at the
-    same clock time the day before, moved to meet ``now_degc`` (the day's course kept, its
-    level today's); ``now_degc`` throughout where the day before has no measurement.
-    (A weather forecast would do better; the bus's yesterday is what the twin has.)"""
+    same clock time the day before (1-min means), moved to meet ``now_degc`` (the day's
+    course kept, its level today's); ``now_degc`` throughout where the day before has no
+    measurement. (A weather forecast would do better; the bus's yesterday is what the twin
+    has.)"""
     if now_degc is None:
         return np.full(n, 15.0)
-    before = twin.samples(bus, t - 86400.0 - 600.0, t - 86400.0 + n, ("ambient_degc",))
-    before = before.dropna()
-    then = before["ambient_degc"][(before["t"] - (t - 86400.0)).abs() <= 300.0]
-    if then.empty or before["t"].iloc[-1] < t - 86400.0 + n - 1800.0:
+    then_t = t - 86400.0
+    # up to the block's end a day before: later predictions of the block lie in that span
+    times, values = _ambient_before(twin, bus, then_t - 600.0, then_t + n, t)
+    inside = (times >= then_t - 600.0) & (times <= then_t + n)
+    times, values = times[inside], values[inside]
+    near = np.abs(times - then_t) <= 300.0
+    if not near.any() or times[-1] < then_t + n - 1800.0:
         return np.full(n, now_degc)
-    course = np.interp(t - 86400.0 + np.arange(n), before["t"].to_numpy(float),
-                       before["ambient_degc"].to_numpy(float))
-    return course - float(then.median()) + now_degc
+    course = np.interp(then_t + np.arange(n), times, values)
+    return course - float(np.median(values[near])) + now_degc
 
 
 def plan_inputs(day_block: DayBlock, t: float, pick, dt_s: float, ambient_degc,
@@ -277,12 +327,12 @@ def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: b
     if isinstance(schedule, DayBlock):
         block = schedule
     else:
-        day = str(pd.Timestamp(t_now, unit="s").date())
-        block = read_block(schedule, day) if schedule is not None else \
-            stored_block(twin, bus_id, day)
+        block = _running([read_block(schedule, day) for day in _days_around(t_now)],
+                         t_now) if schedule is not None else block_at(twin, bus_id, t_now)
         if block is None:
-            raise ConfigError(f"bus '{bus}' has no block for {day}: PUT it to "
-                              f"/v1/buses/{bus}/schedules/{day}")
+            raise ConfigError(f"bus '{bus}' has no block stored that runs at "
+                              f"{pd.Timestamp(t_now, unit='s'):%Y-%m-%d %H:%M} UTC: PUT its "
+                              f"day's block to /v1/buses/{bus}/schedules/DAY")
     model = bus_model(settings.bus_config, settings.dt_s)
     values = latest_values(twin, bus_id, before_t=t_now)
     vec = model.param_vector(values)
@@ -347,8 +397,7 @@ def maybe_predict(twin, bus: str, settings) -> Forecast | None:
                             .where(predictions.c.bus_id == bus_id)).scalar()
     if head is None or (last is not None and head - last < settings.predict_every_s):
         return None
-    day = str(pd.Timestamp(head, unit="s").date())
-    block = stored_block(twin, bus_id, day)
+    block = block_at(twin, bus_id, head)
     if block is None or not block.start_s <= head < block.end_s:
         return None
     try:
