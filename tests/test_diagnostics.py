@@ -215,40 +215,47 @@ def test_hidden_effect_ranks_first_with_its_strength(name):
     assert d.nrmse["after"]["held_out"] < 0.5 * d.nrmse["before"]["held_out"]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", LIBRARY_CASES)
-def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(name):
+def check_recalibration(name: str, d: dict) -> None:
     """Added and re-calibrated, the hidden effect brings the held-out error down to that of
     the model that made the day (the log's own noise), within 20 %: the bus-to-bus parameters
     trade off against the effect's (on the regen day they fit the calibration blocks better than
     the truth does, and the held-out ones 17 % worse). The calibration without it leaves the
     error above twice that (a cold pack too: on the charger its cells sit at their upper
     voltage for half an hour and the charge current is capped, which no warm pack's parameters
-    reproduce); the effect is named on the calibrated residual
-    too and the error at least halves."""
+    reproduce); the effect is named on the calibrated residual too and the error at least
+    halves. ``d``: the day's diagnosis with the effect added, as JSON."""
     from ebus_env.calibration.calibrate import evaluate_fit
 
     case = hidden.case(name)
     profiles = hidden_log(name)
-    d = diagnose(hidden.baseline_bus(case), profiles, add=[case.effect])
-    assert [r.label for r in d.ladder] == ["as given", f"+ {case.effect}"]
-    assert d.nrmse["after"]["held_out"] == d.ladder[-1].held_out["nrmse"]
+    ladder = d["ladder"]
+    assert [r["label"] for r in ladder] == ["as given", f"+ {case.effect}"]
+    assert d["nrmse"]["after"]["held_out"] == ladder[-1]["held_out"]["nrmse"]
     truth = hidden.true_bus(case).build()
     truth_nrmse = evaluate_fit(truth, profiles, truth.params, split_blocks(profiles)[1])[0]["nrmse"]
-    before, after = (r.held_out["nrmse"] for r in (d.ladder[0], d.ladder[-1]))
+    before, after = (r["held_out"]["nrmse"] for r in (ladder[0], ladder[-1]))
     assert after <= 1.2 * truth_nrmse, (before, after, truth_nrmse)
     assert before > 2 * truth_nrmse, (before, truth_nrmse)
-    assert d.verdict == case.effect  # named on the calibrated model's residual too
-    assert improvement(d.ladder) >= 0.5, [r.held_out for r in d.ladder]
+    assert d["verdict"] == case.effect  # named on the calibrated model's residual too
+    assert after <= 0.5 * before, [r["held_out"] for r in ladder]
     if name == "cabin_heating":
         # without the cabin the calibration takes its power up in the bus's own parameters
         # (a pack more than 10 % smaller than the truth's); with it, the pack and the base
         # load come back within 10 % of the truth's
         pack_ah = truth.params[truth.param_index("rint_battery.cell_capacity_ah")]
-        pack = [r.values["rint_battery.cell_capacity_ah"] for r in d.ladder]
-        base = [r.values["auxiliaries.base_power_w"] for r in d.ladder]
+        pack = [r["values"]["rint_battery.cell_capacity_ah"] for r in ladder]
+        base = [r["values"]["auxiliaries.base_power_w"] for r in ladder]
         assert pack[0] < 0.9 * pack_ah and pack[-1] == pytest.approx(pack_ah, rel=0.1), pack
         assert base[-1] == pytest.approx(4000, rel=0.1), base
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in LIBRARY_CASES
+                                  if n != "cabin_heating"])  # the demo's (tests/test_demo.py)
+def test_adding_the_hidden_effect_and_recalibrating_reaches_the_truths_error(name):
+    case = hidden.case(name)
+    check_recalibration(name, diagnose(hidden.baseline_bus(case), hidden_log(name),
+                                       add=[case.effect]).to_json())
 
 
 def test_control_day_supports_no_missing_effect():
