@@ -215,12 +215,11 @@ def _ambient_before(twin, bus: str, lo: float, hi: float, t: float
     if cached is not None and cached[0] <= lo and hi <= cached[1]:
         return cached[2], cached[3]
     frame = twin.samples(bus, lo, hi, ("ambient_degc",)).dropna()
-    bins = np.floor(frame["t"].to_numpy(float) / AMBIENT_BIN_S)
-    keys, first, count = np.unique(bins, return_index=True, return_counts=True)
-    values = np.add.reduceat(frame["ambient_degc"].to_numpy(float), first) / count \
-        if len(first) else np.zeros(0)
-    times = np.add.reduceat(frame["t"].to_numpy(float), first) / count \
-        if len(first) else np.zeros(0)
+    t_s = frame["t"].to_numpy(float)
+    _, minute = np.unique(np.floor(t_s / AMBIENT_BIN_S), return_inverse=True)
+    count = np.bincount(minute)
+    times = np.bincount(minute, t_s) / count
+    values = np.bincount(minute, frame["ambient_degc"].to_numpy(float)) / count
     if hi <= t - SETTLED_S:
         twin.ambient_cache[bus] = (lo, hi, times, values)
     return times, values
