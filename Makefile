@@ -32,7 +32,7 @@ test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n 2 -m "not slow"
 
 test-all: $(STAMP)
-	$(VENV)/bin/python -m pytest -n 2 --durations=25   # the slowest, to keep the whole suite short
+	$(VENV)/bin/python -m pytest -n 2 --dist worksteal --durations=40   # the slowest, to keep the whole suite short
 
 bench: $(STAMP)
 	$(VENV)/bin/python -m benchmarks.bench_core

@@ -12,6 +12,19 @@ from ebus_env.profile import Profile
 DT = 0.1
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the modules that hold slow tests first, those with most of them first, each module's
+    tests together and in their order: two workers then share the long tests from the start,
+    and the suite ends on short ones, not on one worker's long tail."""
+    def module(item: pytest.Item) -> str:
+        return item.nodeid.split("::")[0]
+
+    slow: dict[str, int] = {}
+    for item in items:
+        slow[module(item)] = slow.get(module(item), 0) + bool(item.get_closest_marker("slow"))
+    items.sort(key=lambda item: -slow[module(item)])  # stable: keeps the order within
+
+
 def constant_profile(speed_mps: float, seconds: float, dt_s: float = DT, **channels) -> Profile:
     """Accelerate smoothly to ``speed_mps`` (1 m/s^2), then hold it."""
     n = int(round(seconds / dt_s))
