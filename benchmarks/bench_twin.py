@@ -171,7 +171,7 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
     from concurrent.futures import ProcessPoolExecutor
 
     from benchmarks import twin_accuracy as acc
-    from ebus_env.twin.forecast import MODEL_ERROR
+    from ebus_env.twin.forecast import MODEL_ERROR, RATE_WEIGHT
 
     jobs = [(fleet, bus) for fleet, names in fleets for bus in names]
     out.mkdir(parents=True, exist_ok=True)
@@ -179,10 +179,14 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
     with ProcessPoolExecutor(workers) as pool:
         infos = list(pool.map(_replay, [(f, b, out, *days) for f, b in jobs]))
         replay_s = time.perf_counter() - t0
-        rows = [r for part in pool.map(_predict, [(f, out, b, MODEL_ERROR, False)
+        rows = [r for part in pool.map(_predict, [(f, out, b, MODEL_ERROR, False, 0.0)
                                                   for f, b in jobs]) for r in part]
+        # the rate's weight, then the band's constant, set on the buses not reported on
+        rate_weight = acc.set_rate_weight([r for r in rows if r["bus"] in calibrate_on])
+        rows = acc.combine(rows, rate_weight)
         model_error = acc.set_model_error([r for r in rows if r["bus"] in calibrate_on])
-        scans = list(pool.map(_predict, [(f, out, b, model_error, True) for f, b in jobs]))
+        scans = list(pool.map(_predict, [(f, out, b, model_error, True, rate_weight)
+                                         for f, b in jobs]))
     alarms = {(r["bus"], r["day"]): r for part in scans for r in part}
     for r in rows:
         r.update({k: alarms[r["bus"], r["day"]][k] for k in ("alarm_t", "alarm_says_t")})
@@ -207,6 +211,9 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
         f"{100 * acc.coverage(cal, model_error):.0f} %")
     row("  the band's model error (set on the other buses)", f"{model_error:.3f}",
         f"per SoC point moved; the code's default {MODEL_ERROR:.3f}")
+    rated = [r for r in rows if r["bus"] in calibrate_on and r["rate_end"] is not None]
+    row("  the bus's own rate's weight, no charger ahead (set on the other buses)",
+        f"{rate_weight:.2f}", f"on {len(rated)} blocks; the code's default {RATE_WEIGHT:.2f}")
     row("  'will not make it' on blocks that made it",
         f"{figures['false_alarms']} of {figures['made_it']}", "bar: <= 5 %")
     row("  alarms before the bus ran below its reserve, median lead",
@@ -216,7 +223,8 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
         f"{1e3 * np.median([r['point_s'] for r in rows]):.0f} / "
         f"{1e3 * np.median([r['band_s'] for r in rows]):.0f} ms",
         f"{workers} processes on the cores at once")
-    return {"infos": infos, "rows": rows, "model_error": model_error, "figures": figures}
+    return {"infos": infos, "rows": rows, "model_error": model_error,
+            "rate_weight": rate_weight, "figures": figures}
 
 
 def keeping_up(infos: list[dict], ingest: dict | None, diagnose_s: list[float]) -> None:

@@ -95,9 +95,10 @@ def _km(frame: pd.DataFrame) -> float:
 
 
 def predict_bus_days(fleet: Path, out: Path, bus: str, model_error: float,
-                     scan: bool = True) -> list[dict]:
-    """Each predicted block of ``bus``: the twin's prediction from the midpoint, the
-    baseline's, the log's, and (``scan``) the reserve alarm along the block."""
+                     scan: bool = True, rate_weight: float = 0.0) -> list[dict]:
+    """Each predicted block of ``bus``: the twin's prediction from the midpoint (the model's
+    alone and the bus's rate's, see :func:`combine`), the baseline's, the log's, and
+    (``scan``) the reserve alarm along the block."""
     from ebus_env.twin import Twin, open_store
     from ebus_env.twin.forecast import predict_bus
     from ebus_env.twin.ingest import from_log_file
@@ -118,7 +119,8 @@ def predict_bus_days(fleet: Path, out: Path, bus: str, model_error: float,
         t0 = time.perf_counter()
         predict_bus(twin, bus, block, at_t=t_half, band=False)  # timed: the point alone
         t1 = time.perf_counter()
-        fc = predict_bus(twin, bus, block, at_t=t_half, model_error=model_error)
+        fc = predict_bus(twin, bus, block, at_t=t_half, model_error=model_error,
+                         rate_weight=rate_weight)
         t2 = time.perf_counter()
         soc = seen["soc_pct"].to_numpy(float)
         per_km = (soc[0] - soc[-1]) / max(_km(seen), 1e-6)
@@ -128,18 +130,19 @@ def predict_bus_days(fleet: Path, out: Path, bus: str, model_error: float,
                "twin": fc.end_soc_pct, "low": fc.end_band_pct[0], "high": fc.end_band_pct[1],
                "p5": fc.band_parts["members_pct"][0], "p95": fc.band_parts["members_pct"][1],
                "moved": fc.band_parts["moved_pct"],
+               "model_end": fc.model_end_soc_pct, "rate_end": fc.rate_end_soc_pct,
                "baseline": float(soc[-1] - per_km * _km(ahead)),
                "crossed_t": float(below.iloc[0]) if len(below) else None,
                "point_s": t1 - t0, "band_s": t2 - t1}
         if scan:
-            row.update(scan_alarm(twin, bus, block, model_error))
+            row.update(scan_alarm(twin, bus, block, model_error, rate_weight))
         rows.append(row)
     twin.close()
     store.engine.dispose()
     return rows
 
 
-def scan_alarm(twin, bus: str, block, model_error: float) -> dict:
+def scan_alarm(twin, bus: str, block, model_error: float, rate_weight: float) -> dict:
     """The first prediction along ``block`` (every :data:`SCAN_S` from an hour after its
     start) that says the bus will run below its reserve, made with a fitted model."""
     from ebus_env.twin.forecast import predict_bus
@@ -149,11 +152,37 @@ def scan_alarm(twin, bus: str, block, model_error: float) -> dict:
         samples = twin.samples(bus, t - 60.0, t, ("soc_pct",))
         if len(samples):
             fc = predict_bus(twin, bus, block, at_t=float(samples["t"].iloc[-1]),
-                             model_error=model_error)
+                             model_error=model_error, rate_weight=rate_weight)
             if fc.will_not_make_it and fc.fitted:
                 return {"alarm_t": fc.t, "alarm_says_t": fc.below_reserve_t}
         t += SCAN_S
     return {"alarm_t": None, "alarm_says_t": None}
+
+
+def set_rate_weight(rows: list[dict]) -> float:
+    """The least-squares weight (0 to 1, on a 0.05 grid) of the bus's rate against the model
+    over ``rows`` predicted with the model alone: ``sum e_m (e_m - e_r) / sum (e_m - e_r)^2``
+    (e: each one's error at the block's end; Bates and Granger's combination)."""
+    both = [r for r in rows if r["rate_end"] is not None]
+    if not both:
+        return 0.0
+    e_m = np.array([r["model_end"] - r["truth"] for r in both])
+    e_r = np.array([r["rate_end"] - r["truth"] for r in both])
+    denom = float(np.sum((e_m - e_r) ** 2))
+    w = float(np.sum(e_m * (e_m - e_r))) / denom if denom > 0 else 0.0
+    return float(np.clip(np.round(w / 0.05) * 0.05, 0.0, 1.0))
+
+
+def combine(rows: list[dict], rate_weight: float) -> list[dict]:
+    """``rows`` (predicted with the model alone) as the twin predicts with ``rate_weight``:
+    the point and the members' percentiles moved by ``w (rate - model)`` where a rate was
+    taken (no charger ahead), as :func:`ebus_env.twin.forecast.predict_bus` does."""
+    out = []
+    for r in rows:
+        shift = 0.0 if r["rate_end"] is None else rate_weight * (r["rate_end"] - r["model_end"])
+        out.append({**r, "twin": r["twin"] + shift, "p5": r["p5"] + shift,
+                    "p95": r["p95"] + shift})
+    return out
 
 
 def band(rows: list[dict], model_error: float) -> tuple[np.ndarray, np.ndarray]:

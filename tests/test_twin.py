@@ -295,6 +295,45 @@ def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
     assert abs(fc.end_soc_pct - truth_end) < 25.0  # the 12 m bus unfitted, as a sanity bound
 
 
+def _half_day(tmp_path, bus: str, day: str):
+    """A twin holding the first half of a shipped bus's day; (twin, log of the day, block)."""
+    store = open_store(tmp_path / "t.sqlite")
+    create(store, fleet="demo", bus=bus)
+    twin = Twin(store)
+    folder = paths.here_or_shipped(f"data/twin_fleet/{bus}")
+    log = from_log_file(folder / f"{day}.csv.gz")
+    block = json.loads((folder / f"{day}.block.json").read_text())
+    half = log.iloc[: len(log) // 2]
+    twin.ingest(bus, half.assign(t=pd.to_datetime(half["t"], unit="s")))
+    return twin, log, block
+
+
+def test_with_no_charger_ahead_the_buss_own_rate_is_combined_with_the_model(tmp_path):
+    """Bus 5 charges at the depot only. Half-way through its block it has used so many SoC
+    points per km; that rate times the km the prediction drives ahead is the second
+    forecast, and the weight moves the end of the block from the model's to the rate's."""
+    twin, log, block = _half_day(tmp_path, "bus-05", "2025-05-06")
+    fc = {w: twin.predict("bus-05", block, band=False, rate_weight=w) for w in (0.0, 0.5, 1.0)}
+    model, rate = fc[0.0].model_end_soc_pct, fc[0.0].rate_end_soc_pct
+    assert rate is not None and fc[0.0].end_soc_pct == pytest.approx(model)
+    assert fc[1.0].end_soc_pct == pytest.approx(rate)
+    assert fc[0.5].end_soc_pct == pytest.approx((model + rate) / 2)
+    # the rate is the log's own: SoC used per km in the first half
+    half = log.iloc[: len(log) // 2]
+    km_seen = float(half["speed_kmh"].sum() / 3600.0)
+    per_km = (half["soc_pct"].iloc[0] - half["soc_pct"].iloc[-1]) / km_seen
+    km_ahead = (fc[0.0].soc_now_pct - rate) / per_km
+    km_left = float(log["speed_kmh"].iloc[len(log) // 2:].sum() / 3600.0)
+    assert 0.8 * km_left < km_ahead < 1.2 * km_left, (km_ahead, km_left)
+
+
+def test_with_a_charger_ahead_the_model_alone_predicts(tmp_path):
+    """Bus 1 charges at a terminal: what a charger puts in no rate can say."""
+    twin, _, block = _half_day(tmp_path, "bus-01", "2025-05-06")
+    fc = twin.predict("bus-01", block, band=False, rate_weight=1.0)
+    assert fc.rate_end_soc_pct is None and fc.end_soc_pct == fc.model_end_soc_pct
+
+
 def test_an_evening_block_is_found_past_utc_midnight(tmp_path):
     """A block's day is its own time zone's service day: the shipped Seattle block moved 8 h
     later runs past midnight UTC, and the stored block of its day is still the one predicted."""

@@ -178,13 +178,15 @@ class Twin:
                         "raised_at": a.raised_at, "message": a.message, "lead_s": a.lead_s}
                        for a in alarm_rows]}
 
-    def predict(self, bus: str, schedule: dict | None = None, band: bool = True):
+    def predict(self, bus: str, schedule: dict | None = None, band: bool = True, **options):
         """The SoC along ``bus``'s block from its newest sample on: at each planned charger
         and at the block's end, with a band (:mod:`ebus_env.twin.forecast`). ``schedule``:
-        a block (:mod:`ebus_env.twin.schedule`); by default the one stored for the day."""
+        a block (:mod:`ebus_env.twin.schedule`); by default the one stored for the day.
+        ``options``: :func:`~ebus_env.twin.forecast.predict_bus`'s (``at_t``,
+        ``model_error``, ``rate_weight``)."""
         from ebus_env.twin.forecast import predict_bus
 
-        return predict_bus(self, bus, schedule, band=band)
+        return predict_bus(self, bus, schedule, band=band, **options)
 
     def alarms(self, bus: str) -> list[dict]:
         return self.bus(bus)["alarms"]

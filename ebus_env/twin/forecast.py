@@ -15,6 +15,14 @@ direction, and adds the model's own error, growing with the energy still to be u
 checked on the others, ``python -m benchmarks.bench_twin``). The 90 % band is the 5th to
 95th percentile of the members widened by ``1.645 sigma_model``.
 
+Where no charger lies ahead, the bus's own rate so far is the stronger evidence: the SoC it
+used per km since the block's start (or its last charge), times the km the point prediction
+drives in the rest of the block, gives a second end-of-block SoC. The prediction combines the
+two, ``SoC_end = SoC_model + RATE_WEIGHT (SoC_rate - SoC_model)`` (a forecast combination,
+J. M. Bates and C. W. J. Granger, Oper. Res. Q. 20 (1969) 451-468), the correction growing
+with the km driven along the way; with a charger ahead the model alone predicts (a rate
+cannot say what a charger puts in).
+
 The reserve alarm fires when the band's *top* lies below the bus's reserve somewhere in the
 rest of the block: the bus will run below it (95 % one-sided), and says when.
 """
@@ -33,10 +41,15 @@ from ebus_env.twin.schedule import DayBlock, read_block, read_stored, trip_key
 from ebus_env.twin.store import alarms, buses, predictions, schedules
 
 MEMBERS = 12
-MODEL_ERROR = 0.035
+MODEL_ERROR = 0.025
 """The model's error [1 sigma] per SoC point the battery still moves (set by
 ``python -m benchmarks.bench_twin`` on buses it does not report on)."""
 Z90 = 1.645
+RATE_WEIGHT = 0.9
+"""The weight of the bus's own SoC-per-km rate against the model on a block's rest without a
+charger (the least-squares weight on buses ``python -m benchmarks.bench_twin`` does not
+report on, rounded to 0.05)."""
+MIN_RATE_KM = 10.0  # km driven since the block's start or last charge before a rate counts
 PAST_DAYS = 3  # days of past trips the band draws from
 KEEP_TRIPS = 8  # the newest trips of each kind it keeps
 DRAW_FROM = 4  # a band member drives one of the trips this many nearest in duration
@@ -63,6 +76,8 @@ class Forecast:
     fitted: bool = False
     from_schedule: int = 0  # trips ahead driven as the block's timetable (none of the bus's)
     band_parts: dict | None = None  # at the block's end: the members' 5-95 %, SoC moved
+    model_end_soc_pct: float | None = None  # the model's alone (RATE_WEIGHT 0)
+    rate_end_soc_pct: float | None = None  # the bus's rate so far times the km ahead, or None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -301,12 +316,34 @@ def plan_inputs(day_block: DayBlock, t: float, pick, dt_s: float, ambient_degc,
     return channels, left, timetable
 
 
+def rate_end_soc(twin, bus: str, block: DayBlock, t: float, km_ahead: float
+                 ) -> float | None:
+    """The SoC [%] at the block's end if the bus goes on using what it used per km since the
+    block's start or its last charge: ``SoC_now - (SoC_from - SoC_now) / km_from x
+    km_ahead``; None where it drove less than :data:`MIN_RATE_KM` since, or its SoC rose."""
+    frame = twin.samples(bus, block.start_s, t, ("soc_pct", "speed_kmh", "charging"))
+    charged = np.flatnonzero(np.nan_to_num(frame["charging"].to_numpy(float)) > 0.5)
+    if charged.size:
+        frame = frame.iloc[charged[-1] + 1:]
+    frame = frame[frame["soc_pct"].notna() & frame["speed_kmh"].notna()]
+    if len(frame) < 2:
+        return None
+    dt_s = np.clip(np.diff(frame["t"].to_numpy(float)), 0.0, 10.0)  # a gap is not driven
+    km = float(np.sum(frame["speed_kmh"].to_numpy(float)[1:] * dt_s) / 3600.0)
+    soc = frame["soc_pct"].to_numpy(float)
+    if km < MIN_RATE_KM or soc[0] <= soc[-1]:
+        return None
+    return float(soc[-1] - (soc[0] - soc[-1]) / km * km_ahead)
+
+
 def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: bool = True,
                 at_t: float | None = None, settings=None, seed: int = 0,
-                model_error: float = MODEL_ERROR) -> Forecast:
+                model_error: float = MODEL_ERROR, rate_weight: float = RATE_WEIGHT
+                ) -> Forecast:
     """The :class:`Forecast` of ``bus`` from its newest sample (or its sample at ``at_t``)
     along ``schedule`` (a block, :mod:`ebus_env.twin.schedule`; default: the one stored for
-    the day); ``model_error``: the band's :data:`MODEL_ERROR`."""
+    the day); ``model_error``: the band's :data:`MODEL_ERROR`; ``rate_weight``: the bus's
+    own rate's :data:`RATE_WEIGHT` where no charger lies ahead."""
     from ebus_env.profile import Profile
     from ebus_env.twin.bus_refit import bus_model, latest_values
     from ebus_env.twin.jobs import JobSettings
@@ -347,9 +384,11 @@ def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: b
                                                 plug_out_s=past.plug_out_s)
         profile = Profile(channels, settings.dt_s, f"{bus} block", 0.0)
         res = model.simulate(profile, vec, soc_start=soc_now / 100.0, record_every=every)
-        return 100.0 * res.trace("soc_frac").astype(float), left, timetable
+        km = np.cumsum(channels["speed_ref_mps"])[::every] * settings.dt_s / 1e3
+        return 100.0 * res.trace("soc_frac").astype(float), left, timetable, km
 
-    point, left, timetable = run(past.like)
+    point, left, timetable, km = run(past.like)
+    km = km[: len(point)]
     step_s = every * settings.dt_s
     times = t_now + step_s * np.arange(len(point))
     rng = np.random.default_rng(seed)
@@ -358,6 +397,13 @@ def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: b
         for _ in range(MEMBERS):
             members.append(run(lambda trip, duration: past.draw(trip, duration, rng))[0])
     stack = np.vstack([m[: len(point)] for m in members])
+    model_end = float(point[-1])
+    charger_ahead = any(end > t_now for _, _, end, _ in block.charger_stops)
+    by_rate = (None if charger_ahead or km[-1] <= 0 else
+               rate_end_soc(twin, bus, block, t_now, float(km[-1])))
+    if by_rate is not None:  # the combination, growing with the km driven along the way
+        stack = stack + rate_weight * (by_rate - model_end) * km / km[-1]
+        point = stack[0]
     # the SoC points the battery still moves (down driving, up charging): the model's error
     # grows with them
     moved = np.concatenate([np.zeros((len(stack), 1)),
@@ -382,7 +428,8 @@ def predict_bus(twin, bus: str, schedule: dict | DayBlock | None = None, band: b
         below_reserve_t=float(times[under[0]]) if under.size else None, trips_left=left,
         fitted=bool(values), from_schedule=timetable,
         band_parts={"members_pct": [float(p5[-1]), float(p95[-1])],
-                    "moved_pct": float(moved[-1])} if band else None)
+                    "moved_pct": float(moved[-1])} if band else None,
+        model_end_soc_pct=model_end, rate_end_soc_pct=by_rate)
 
 
 def maybe_predict(twin, bus: str, settings) -> Forecast | None:
