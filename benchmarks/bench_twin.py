@@ -179,11 +179,13 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
     with ProcessPoolExecutor(workers) as pool:
         infos = list(pool.map(_replay, [(f, b, out, *days) for f, b in jobs]))
         replay_s = time.perf_counter() - t0
-        rows = [r for part in pool.map(_predict, [(f, out, b, MODEL_ERROR, False, 0.0)
+        # the rate's weight on the model's predictions alone, then, on the predictions with
+        # it, the band's constant: both set on the buses not reported on
+        alone = [r for part in pool.map(_predict, [(f, out, b, MODEL_ERROR, False, 0.0)
+                                                   for f, b in jobs]) for r in part]
+        rate_weight = acc.set_rate_weight([r for r in alone if r["bus"] in calibrate_on])
+        rows = [r for part in pool.map(_predict, [(f, out, b, MODEL_ERROR, False, rate_weight)
                                                   for f, b in jobs]) for r in part]
-        # the rate's weight, then the band's constant, set on the buses not reported on
-        rate_weight = acc.set_rate_weight([r for r in rows if r["bus"] in calibrate_on])
-        rows = acc.combine(rows, rate_weight)
         model_error = acc.set_model_error([r for r in rows if r["bus"] in calibrate_on])
         scans = list(pool.map(_predict, [(f, out, b, model_error, True, rate_weight)
                                          for f, b in jobs]))
@@ -211,7 +213,7 @@ def accuracy(fleets: list[tuple[Path, list[str]]], calibrate_on: set[str], out: 
         f"{100 * acc.coverage(cal, model_error):.0f} %")
     row("  the band's model error (set on the other buses)", f"{model_error:.3f}",
         f"per SoC point moved; the code's default {MODEL_ERROR:.3f}")
-    rated = [r for r in rows if r["bus"] in calibrate_on and r["rate_end"] is not None]
+    rated = [r for r in alone if r["bus"] in calibrate_on and r["rate_end"] is not None]
     row("  the bus's own rate's weight, no charger ahead (set on the other buses)",
         f"{rate_weight:.2f}", f"on {len(rated)} blocks; the code's default {RATE_WEIGHT:.2f}")
     row("  'will not make it' on blocks that made it",

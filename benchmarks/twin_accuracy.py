@@ -96,8 +96,8 @@ def _km(frame: pd.DataFrame) -> float:
 
 def predict_bus_days(fleet: Path, out: Path, bus: str, model_error: float,
                      scan: bool = True, rate_weight: float = 0.0) -> list[dict]:
-    """Each predicted block of ``bus``: the twin's prediction from the midpoint (the model's
-    alone and the bus's rate's, see :func:`combine`), the baseline's, the log's, and
+    """Each predicted block of ``bus``: the twin's prediction from the midpoint (and its two
+    ingredients, the model's alone and the bus's rate's), the baseline's, the log's, and
     (``scan``) the reserve alarm along the block."""
     from ebus_env.twin import Twin, open_store
     from ebus_env.twin.forecast import predict_bus
@@ -171,18 +171,6 @@ def set_rate_weight(rows: list[dict]) -> float:
     denom = float(np.sum((e_m - e_r) ** 2))
     w = float(np.sum(e_m * (e_m - e_r))) / denom if denom > 0 else 0.0
     return float(np.clip(np.round(w / 0.05) * 0.05, 0.0, 1.0))
-
-
-def combine(rows: list[dict], rate_weight: float) -> list[dict]:
-    """``rows`` (predicted with the model alone) as the twin predicts with ``rate_weight``:
-    the point and the members' percentiles moved by ``w (rate - model)`` where a rate was
-    taken (no charger ahead), as :func:`ebus_env.twin.forecast.predict_bus` does."""
-    out = []
-    for r in rows:
-        shift = 0.0 if r["rate_end"] is None else rate_weight * (r["rate_end"] - r["model_end"])
-        out.append({**r, "twin": r["twin"] + shift, "p5": r["p5"] + shift,
-                    "p95": r["p95"] + shift})
-    return out
 
 
 def band(rows: list[dict], model_error: float) -> tuple[np.ndarray, np.ndarray]:
