@@ -90,8 +90,9 @@ def replay_bus(fleet: Path, bus: str, out: Path, days: int | None = None,
 
 
 def _km(frame: pd.DataFrame) -> float:
-    t, v = frame["t"].to_numpy(float), frame["speed_kmh"].to_numpy(float)
-    return float(np.sum(v[1:] * np.diff(t)) / 3600.0) if len(t) > 1 else 0.0
+    from ebus_env.twin.forecast import driven_km
+
+    return driven_km(frame, max_step_s=np.inf)
 
 
 def predict_bus_days(fleet: Path, out: Path, bus: str, model_error: float,

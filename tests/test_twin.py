@@ -276,16 +276,23 @@ def test_the_openapi_schema_documents_the_batch(service):
     assert "soc_pct" in json.dumps(body["application/json"])
 
 
-def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
+def _half_day(tmp_path, bus: str, day: str):
+    """A twin holding the first half of a shipped bus's day; (twin, log of the day, block,
+    the ingest's receipt)."""
     store = open_store(tmp_path / "t.sqlite")
-    create(store, fleet="demo", bus="bus-05")
+    create(store, fleet="demo", bus=bus)
     twin = Twin(store)
-    folder = paths.here_or_shipped("data/twin_fleet/bus-05")
-    day = from_log_file(folder / "2025-05-06.csv.gz")
-    block = json.loads((folder / "2025-05-06.block.json").read_text())
-    half = day.iloc[: len(day) // 2]
-    receipt = twin.ingest("bus-05", half.assign(t=pd.to_datetime(half["t"], unit="s")))
-    assert receipt.stored == len(half) and receipt.status == "stored"
+    folder = paths.here_or_shipped(f"data/twin_fleet/{bus}")
+    log = from_log_file(folder / f"{day}.csv.gz")
+    block = json.loads((folder / f"{day}.block.json").read_text())
+    half = log.iloc[: len(log) // 2]
+    receipt = twin.ingest(bus, half.assign(t=pd.to_datetime(half["t"], unit="s")))
+    return twin, log, block, receipt
+
+
+def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
+    twin, day, block, receipt = _half_day(tmp_path, "bus-05", "2025-05-06")
+    assert receipt.stored == len(day) // 2 and receipt.status == "stored"
     fc = twin.predict("bus-05", block)
     truth_end = float(day["soc_pct"].iloc[-1])
     assert fc.trips_left > 0 and not fc.fitted
@@ -295,24 +302,11 @@ def test_the_python_api_ingests_a_frame_and_predicts_a_block(tmp_path):
     assert abs(fc.end_soc_pct - truth_end) < 25.0  # the 12 m bus unfitted, as a sanity bound
 
 
-def _half_day(tmp_path, bus: str, day: str):
-    """A twin holding the first half of a shipped bus's day; (twin, log of the day, block)."""
-    store = open_store(tmp_path / "t.sqlite")
-    create(store, fleet="demo", bus=bus)
-    twin = Twin(store)
-    folder = paths.here_or_shipped(f"data/twin_fleet/{bus}")
-    log = from_log_file(folder / f"{day}.csv.gz")
-    block = json.loads((folder / f"{day}.block.json").read_text())
-    half = log.iloc[: len(log) // 2]
-    twin.ingest(bus, half.assign(t=pd.to_datetime(half["t"], unit="s")))
-    return twin, log, block
-
-
 def test_with_no_charger_ahead_the_buss_own_rate_is_combined_with_the_model(tmp_path):
     """Bus 5 charges at the depot only. Half-way through its block it has used so many SoC
     points per km; that rate times the km the prediction drives ahead is the second
     forecast, and the weight moves the end of the block from the model's to the rate's."""
-    twin, log, block = _half_day(tmp_path, "bus-05", "2025-05-06")
+    twin, log, block, _ = _half_day(tmp_path, "bus-05", "2025-05-06")
     fc = {w: twin.predict("bus-05", block, band=False, rate_weight=w) for w in (0.0, 0.5, 1.0)}
     model, rate = fc[0.0].model_end_soc_pct, fc[0.0].rate_end_soc_pct
     assert rate is not None and fc[0.0].end_soc_pct == pytest.approx(model)
@@ -329,7 +323,7 @@ def test_with_no_charger_ahead_the_buss_own_rate_is_combined_with_the_model(tmp_
 
 def test_with_a_charger_ahead_the_model_alone_predicts(tmp_path):
     """Bus 1 charges at a terminal: what a charger puts in no rate can say."""
-    twin, _, block = _half_day(tmp_path, "bus-01", "2025-05-06")
+    twin, _, block, _ = _half_day(tmp_path, "bus-01", "2025-05-06")
     fc = twin.predict("bus-01", block, band=False, rate_weight=1.0)
     assert fc.rate_end_soc_pct is None and fc.end_soc_pct == fc.model_end_soc_pct
 

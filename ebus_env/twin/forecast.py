@@ -316,6 +316,13 @@ def plan_inputs(day_block: DayBlock, t: float, pick, dt_s: float, ambient_degc,
     return channels, left, timetable
 
 
+def driven_km(samples: pd.DataFrame, max_step_s: float = 10.0) -> float:
+    """The km the samples' speed covers (``t`` [s], ``speed_kmh``), each speed held to the
+    next sample; a gap longer than ``max_step_s`` counts as that long (it is not driven)."""
+    t, v = samples["t"].to_numpy(float), samples["speed_kmh"].to_numpy(float)
+    return float(np.sum(v[1:] * np.clip(np.diff(t), 0.0, max_step_s)) / 3600.0)
+
+
 def rate_end_soc(twin, bus: str, block: DayBlock, t: float, km_ahead: float
                  ) -> float | None:
     """The SoC [%] at the block's end if the bus goes on using what it used per km since the
@@ -328,8 +335,7 @@ def rate_end_soc(twin, bus: str, block: DayBlock, t: float, km_ahead: float
     frame = frame[frame["soc_pct"].notna() & frame["speed_kmh"].notna()]
     if len(frame) < 2:
         return None
-    dt_s = np.clip(np.diff(frame["t"].to_numpy(float)), 0.0, 10.0)  # a gap is not driven
-    km = float(np.sum(frame["speed_kmh"].to_numpy(float)[1:] * dt_s) / 3600.0)
+    km = driven_km(frame)
     soc = frame["soc_pct"].to_numpy(float)
     if km < MIN_RATE_KM or soc[0] <= soc[-1]:
         return None
