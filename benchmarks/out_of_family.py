@@ -30,6 +30,7 @@ from ebus_env.config import load_bus
 from ebus_env.diagnostics import diagnose
 from ebus_env.diagnostics.ladder import Freedom, improvement
 from ebus_env.io.measured import load_log
+from ebus_env.outputs import write_text, write_with
 
 BENCHMARKS = Path(__file__).resolve().parent
 USER_FILE = BENCHMARKS / "user_effects.py"
@@ -146,9 +147,8 @@ def first_of(items: list, hidden_of, per_kind: int | None, controls: int | None,
 
 
 def _write_csv(frame: pd.DataFrame, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    frame.to_csv(tmp, index=False, compression="gzip")
-    tmp.replace(path)
+    # a temporary file of its own: two runs that share a cache may write the same day at once
+    write_with(path, lambda tmp: frame.to_csv(tmp, index=False, compression="gzip"))
 
 
 def generate_day(source: str, case, folder: Path) -> tuple[Path, Path]:
@@ -162,9 +162,7 @@ def generate_day(source: str, case, folder: Path) -> tuple[Path, Path]:
         module, _ = truth_module(source)
         log, truth = module.generate(case, current_voltage=True, oracle=True)
         _write_csv(log, log_path)
-        tmp = truth_path.with_name(truth_path.name + ".tmp")  # the record last: the day is whole
-        tmp.write_text(json.dumps(truth, default=str))
-        tmp.replace(truth_path)
+        write_text(truth_path, json.dumps(truth, default=str))  # the record last: the day is whole
     return log_path, truth_path
 
 
@@ -492,9 +490,7 @@ def read_rows(path: Path) -> list[dict]:
 
 
 def write_rows(rows: list[dict], path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(rows, default=float, indent=1))
-    tmp.replace(path)
+    write_text(path, json.dumps(rows, default=float, indent=1))
 
 
 def print_row(row: dict) -> None:

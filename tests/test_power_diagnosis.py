@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from ebus_env.diagnostics import hidden
-from ebus_env.diagnostics.heldout import HeldOut, Nuisance, margin
-from ebus_env.diagnostics.power import logs_power
-from ebus_env.diagnostics.power_fit import counted_capacity_ah
-from ebus_env.diagnostics.power_path import diagnose_power, needed
+from ebus_env.diagnostics.heldout import HeldOut, Nuisance, fit_all, margin
+from ebus_env.diagnostics.power import MODES, Bins, logs_power
+from ebus_env.diagnostics.power_candidates import Form
+from ebus_env.diagnostics.power_fit import counted_capacity_ah, sensor_columns
+from ebus_env.diagnostics.power_path import bound_reached, diagnose_power, needed
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log
 
@@ -52,6 +53,49 @@ def test_the_bus_parameters_take_up_what_they_can_so_a_candidate_is_credited_onl
     y, w, nuisance, block, s = linear_problem()
     held = HeldOut(y, w, nuisance, block)
     assert held.test("same as c", nuisance.x[:, 2][None, :]).chi2 < 1.0
+
+
+def test_each_day_has_its_own_current_sensor_gain_and_offset():
+    """On two days logged through sensors of different gain and offset, the per-day sensor
+    columns take up the logged power to the watt; one gain and offset for both days would
+    leave a day-shaped missing power (what a weather-borne effect would take for itself)."""
+    rng = np.random.default_rng(4)
+    n = 400
+    day = np.repeat([0, 1], n // 2)
+    share = np.zeros((n, len(MODES)))
+    share[:, MODES.index("cruising")] = 1.0
+    bins = Bins(profile=day, first=np.arange(n) * 10, day=day, block=np.arange(n) // 60,
+                hour=np.full(n, 12.0), fit=np.ones(n, bool), mode_share=share, seconds=10)
+    power_w = rng.uniform(-80e3, 200e3, n)
+    volts = rng.uniform(600.0, 680.0, n)
+    gain, offset_a = np.where(day == 0, 0.008, -0.008), np.where(day == 0, 0.4, -0.3)
+    logged_w = (1.0 + gain) * power_w + offset_a * volts
+    split = sensor_columns(bins, power_w, volts)
+    assert split.names == ["current sensor gain, day 0", "current sensor gain, day 1",
+                           "current sensor offset [A], day 0", "current sensor offset [A], day 1",
+                           "drivetrain loss while moving [kW]"]
+    w = np.ones(n)
+    *_, loss = fit_all(logged_w - power_w, w, split)
+    assert loss / n < 1.0  # W^2: exact
+    _, _, coef, _, _ = fit_all(logged_w - power_w, w, split)
+    assert coef[:4] == pytest.approx([0.008, -0.008, 0.4, -0.3], abs=1e-6)
+    one_day = replace(bins, day=np.zeros(n, int))
+    shared = sensor_columns(one_day, power_w, volts)
+    assert len(shared.names) == 3
+    *_, loss_shared = fit_all(logged_w - power_w, w, shared)
+    assert np.sqrt(loss_shared / n) > 300.0  # W: each day's 0.8 % of the power is left
+
+
+def test_a_strength_at_an_end_of_its_range_is_told_from_one_inside_it():
+    """The regen limit's signatures span its declared range (50 to 99.9 % SoC) beside its
+    default: a fit at 50 % is at the lower bound, at 99.9 % at the upper, inside is neither;
+    a form without strengths (a load outside the library) has no bound."""
+    grid = np.concatenate([[90.0], np.linspace(50.0, 99.9, 9)])
+    form = Form("regen_soc_limit", "missing effect", np.zeros((len(grid), 4)), strengths=grid,
+                strength_param="regen_soc_limit.derate_soc_pct")
+    assert bound_reached(form, 1) == "lower" and bound_reached(form, 9) == "upper"
+    assert bound_reached(form, 0) is None and bound_reached(form, 5) is None
+    assert bound_reached(replace(form, strengths=None), 1) is None
 
 
 def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, plain: bool = False,

@@ -49,7 +49,11 @@ which come with turning, not with torque: kW whatever the load). A gain error sh
 a fast charger (1 % of 450 kW is 4.5 kW, as much as the bus's loads); a loss while moving,
 left out, would set the auxiliary load between the standing and the moving bins' and leave
 a spurious standing load. They are fitted beside the bus's parameters and stay nuisances of
-every test."""
+every test. On several days the sensor's gain and offset are each day's own
+(:data:`PER_DAY`): a Hall sensor's offset moves with its temperature and a logger may be
+swapped, and one gain for all the days would leave each day's difference as a missing power
+that follows the day, as the weather's effects do."""
+PER_DAY = ("current sensor gain", "current sensor offset [A]")
 STEP = 0.05  # a parameter's change for its signature, of its search range
 ITERATIONS = 4
 MIN_SOC_SPAN = 0.05
@@ -115,6 +119,8 @@ class BusFit:
     params: np.ndarray  # the model's full parameter row
     runs: list[np.ndarray]  # per profile (n_seconds, len(TRACE)) at params
     nuisance: Nuisance  # columns on every bin, the box about the fitted values
+    power_w: np.ndarray  # the model's pack power per bin at params
+    sensor_terms: int  # the first columns of ``nuisance``: the sensor's (per day where so)
 
     @property
     def values(self) -> dict[str, float]:
@@ -124,13 +130,13 @@ class BusFit:
     def missing(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> np.ndarray:
         """The power the fitted bus misses per bin, the sensor's fitted gain and offset taken
         off (fitted on the ``use`` bins with ``weights``)."""
-        power = self.nuisance.x[:, 0]
-        sensor = self.nuisance.x[:, :len(SENSOR)]
+        k = self.sensor_terms
+        sensor = self.nuisance.x[:, :k]
         w = np.ones(len(logged_w)) if weights is None else weights
-        local = Nuisance(list(SENSOR), sensor[use], self.nuisance.low[:len(SENSOR)],
-                         self.nuisance.high[:len(SENSOR)])
-        _, _, coef, _, _ = fit_all(logged_w[use] - power[use], w[use], local)
-        return logged_w - power - sensor @ coef
+        local = Nuisance(self.nuisance.names[:k], sensor[use], self.nuisance.low[:k],
+                         self.nuisance.high[:k])
+        _, _, coef, _, _ = fit_all(logged_w[use] - self.power_w[use], w[use], local)
+        return logged_w - self.power_w - sensor @ coef
 
     def range_ends(self, tol: float = 0.02) -> dict[str, str]:
         """The fitted parameters at an end of their search range ("lower" or "upper")."""
@@ -180,23 +186,43 @@ def fit_bus(model, profiles, bins: Bins, logged_w: np.ndarray, voltage_v: np.nda
     params[index] = np.clip(params[index], low, high)
     at = TRACE.index("battery_power_w")
     use = bins.fit
-    sensor_low = np.array([v[0] for v in SENSOR.values()])
-    sensor_high = np.array([v[1] for v in SENSOR.values()])
 
     def nuisance_at(runs, columns):
         power = bins.means([r[:, at] for r in runs])
-        moving = 1e3 * (1.0 - bins.mode_share[:, MODES.index("standing")]
-                        - bins.mode_share[:, MODES.index("charging")])
-        x = np.column_stack([power, voltage_v, moving, bins.means(columns).T])
-        return power, Nuisance([*SENSOR, *names], x, np.append(sensor_low, low - params[index]),
-                               np.append(sensor_high, high - params[index]))
+        sensor = sensor_columns(bins, power, voltage_v)
+        x = np.column_stack([sensor.x, bins.means(columns).T])
+        return power, Nuisance([*sensor.names, *names], x,
+                               np.append(sensor.low, low - params[index]),
+                               np.append(sensor.high, high - params[index])), len(sensor.names)
 
     for _ in range(iterations):
         runs, columns, _ = _signatures(model, profiles, params, names, box)
-        power, nuisance = nuisance_at(runs, columns)
+        power, nuisance, k = nuisance_at(runs, columns)
         local = Nuisance(nuisance.names, nuisance.x[use], nuisance.low, nuisance.high)
         _, _, step, _, _ = fit_all(logged_w[use] - power[use], weights[use], local)
         params = params.copy()
-        params[index] = np.clip(params[index] + step[len(SENSOR):], low, high)
+        params[index] = np.clip(params[index] + step[k:], low, high)
     runs, columns, _ = _signatures(model, profiles, params, names, box)
-    return BusFit(model, names, box, params, runs, nuisance_at(runs, columns)[1])
+    power, nuisance, k = nuisance_at(runs, columns)
+    return BusFit(model, names, box, params, runs, nuisance, power, k)
+
+
+def sensor_columns(bins: Bins, power_w: np.ndarray, voltage_v: np.ndarray) -> Nuisance:
+    """The :data:`SENSOR` terms' columns on every bin (``power_w``: the model's pack power,
+    ``voltage_v``: the logged voltage): the gain's is the power, the offset's the voltage, the
+    loss while moving's 1 kW on the share of the bin the bus moves. On several days the
+    :data:`PER_DAY` terms get one column per day, zero on the other days' bins."""
+    moving = 1e3 * (1.0 - bins.mode_share[:, MODES.index("standing")]
+                    - bins.mode_share[:, MODES.index("charging")])
+    column = {"current sensor gain": power_w, "current sensor offset [A]": voltage_v,
+              "drivetrain loss while moving [kW]": moving}
+    days = int(bins.day.max()) + 1 if len(bins) else 1
+    names, x, low, high = [], [], [], []
+    for name, (lo, hi) in SENSOR.items():
+        split = name in PER_DAY and days > 1
+        for d in range(days if split else 1):
+            names.append(f"{name}, day {d}" if split else name)
+            x.append(np.where(bins.day == d, column[name], 0.0) if split else column[name])
+            low.append(lo)
+            high.append(hi)
+    return Nuisance(names, np.column_stack(x), np.array(low), np.array(high))

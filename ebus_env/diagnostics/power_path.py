@@ -8,7 +8,8 @@
 3. Each tested against the bus-to-bus parameters alone on held-out blocks
    (:mod:`~ebus_env.diagnostics.heldout`): the held-out loss it removes, in noise units
    (``chi2``), and the decision (:func:`decide`).
-4. The named effect's strength and the energy it adds, with intervals; from which day it acts
+4. The named effect's strength and the energy it adds, with intervals (a strength at an end
+   of its parameter's range withdraws the name: :func:`bound_reached`); from which day it acts
    on several days; the missing power by operating mode; what the logged voltage says of the
    pack's resistance (a cold pack shows there, not in the power).
 
@@ -79,7 +80,7 @@ preferred to it: a 5 % test at the same scale."""
 class Finding:
     """What the power path concludes."""
 
-    status: str  # named, voltage, tie, outside library, noise
+    status: str  # named, voltage, tie, implausible, outside library, noise
     verdict: str | None  # the named effect
     why: str
     since_day: int  # the day the named effect (or the outside form) acts from; 0: every day
@@ -244,6 +245,32 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     return out
 
 
+def bound_reached(form: Form, choice: int) -> str | None:
+    """``"lower"`` or ``"upper"`` where the strength a form was fitted at is an end of its
+    parameter's declared range (its signatures span the range, ends included), else None."""
+    if form.strengths is None or len(form.strengths) < 3:
+        return None
+    values = np.asarray(form.strengths, float)
+    value = values[choice]
+    if value <= values.min():
+        return "lower"
+    return "upper" if value >= values.max() else None
+
+
+def implausible_why(form: Form, test: Test, side: str) -> str:
+    """Why a library effect that passed is not named: its strength ends at a bound. Every
+    bus-to-bus parameter was free beside it, so the data ask for more than the effect can
+    physically be, and what it took up is another shape (the SoC windows' rule, in
+    :mod:`~ebus_env.diagnostics.stage06_attribution`, without a re-calibration to settle
+    it: here the bus's parameters are already free)."""
+    values = np.asarray(form.strengths, float)
+    return (f"the shape of {label(form)} fits (chi-square {test.chi2:.0f}), the strength is "
+            f"implausible: {form.strength_param} ends at its {side} bound, "
+            f"{values[test.choice]:.4g} (range {values.min():.4g} to {values.max():.4g}), "
+            "with every bus-to-bus parameter free beside it (its form differs from what the "
+            "log shows)")
+
+
 def mode_table(residual, w, bins, use) -> list[dict]:
     """The missing power in each operating mode [kW]: the weighted least-squares fit of each
     bin's missing power to its shares of time in the modes, with block-bootstrap standard
@@ -349,6 +376,11 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
         finding.strength = strength_of(best, form, form.signatures_w[:, use], missing[use],
                                        weights[use], nuisance, bins.block[use], BIN_S)
         finding.fall = best.gain
+        side = bound_reached(form, best.choice)
+        if side:
+            finding.why = implausible_why(form, best, side)
+            finding.status, finding.verdict, finding.strength = "implausible", None, {}
+            finding.since_day, finding.since_interval = 0, (0, 0)
     elif status == "outside library" and tests:
         top = max((t for k, t in tests.items() if by_label[k].kind == "outside"),
                   key=lambda t: t.chi2)
@@ -357,8 +389,8 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     finding.modes = mode_table(missing, weights, bins, use)
     say("the pack's resistance from the logged voltage")
     check = voltage_evidence(model, profiles, fit.params, effects)
-    if check is not None and check.best is not None and finding.status in ("noise",
-                                                                          "outside library"):
+    if check is not None and check.best is not None and finding.status in (
+            "noise", "outside library", "implausible"):
         finding.status, finding.verdict = "voltage", check.best.effect
         finding.why = (f"the logged voltage shows the pack's resistance changing over the log, "
                        f"and {check.best.effect} reproduces {100 * check.best.explained:.0f} % "
