@@ -75,9 +75,8 @@ def test_each_day_has_its_own_current_sensor_gain_and_offset():
                            "current sensor offset [A], day 0", "current sensor offset [A], day 1",
                            "drivetrain loss while moving [kW]"]
     w = np.ones(n)
-    *_, loss = fit_all(logged_w - power_w, w, split)
+    _, _, coef, _, loss = fit_all(logged_w - power_w, w, split)
     assert loss / n < 1.0  # W^2: exact
-    _, _, coef, _, _ = fit_all(logged_w - power_w, w, split)
     assert coef[:4] == pytest.approx([0.008, -0.008, 0.4, -0.3], abs=1e-6)
     one_day = replace(bins, day=np.zeros(n, int))
     shared = sensor_columns(one_day, power_w, volts)

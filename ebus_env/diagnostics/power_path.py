@@ -373,14 +373,16 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
         best = next(t for k, t in tests.items() if by_label[k].name == verdict
                     and by_label[k].since_day == finding.since_day)
         form = by_label[best.name]
-        finding.strength = strength_of(best, form, form.signatures_w[:, use], missing[use],
-                                       weights[use], nuisance, bins.block[use], BIN_S)
         finding.fall = best.gain
         side = bound_reached(form, best.choice)
-        if side:
+        if side:  # withdrawn: no strength to give
             finding.why = implausible_why(form, best, side)
-            finding.status, finding.verdict, finding.strength = "implausible", None, {}
+            finding.status, finding.verdict = "implausible", None
             finding.since_day, finding.since_interval = 0, (0, 0)
+        else:
+            finding.strength = strength_of(best, form, form.signatures_w[:, use],
+                                           missing[use], weights[use], nuisance,
+                                           bins.block[use], BIN_S)
     elif status == "outside library" and tests:
         top = max((t for k, t in tests.items() if by_label[k].kind == "outside"),
                   key=lambda t: t.chi2)
