@@ -12,10 +12,32 @@ import pytest
 
 from ebus_env.diagnostics import hidden
 from ebus_env.diagnostics.heldout import HeldOut, Nuisance, fit_all, margin
-from ebus_env.diagnostics.power import MODES, Bins, logs_power
+from ebus_env.diagnostics.power import (
+    MODES,
+    TRACE,
+    Bins,
+    anchored_runs,
+    log_power,
+    log_voltage,
+    logs_power,
+    make_bins,
+)
 from ebus_env.diagnostics.power_candidates import Form
-from ebus_env.diagnostics.power_fit import counted_capacity_ah, sensor_columns
-from ebus_env.diagnostics.power_path import bound_reached, diagnose_power, needed
+from ebus_env.diagnostics.power_fit import (
+    _dead,
+    _signatures,
+    counted_capacity_ah,
+    fit_bus,
+    search_box,
+    sensor_columns,
+)
+from ebus_env.diagnostics.power_path import (
+    bound_reached,
+    diagnose_power,
+    needed,
+    pack_resistance,
+    scaled,
+)
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log
 
@@ -97,16 +119,33 @@ def test_a_strength_at_an_end_of_its_range_is_told_from_one_inside_it():
     assert bound_reached(replace(form, strengths=None), 1) is None
 
 
+def test_a_strength_that_only_scales_its_signature_is_read_from_the_fitted_size():
+    """A load's scale (0 to 5, default 1) only scales its signature: fitted on the scale-5
+    signature with coefficient 0.3 it is a scale of 1.5, inside its range (not at the upper
+    bound the signature alone would say); only a size beyond the largest signature's is at a
+    bound. A form whose shape changes with its strength keeps the chosen signature's value."""
+    shape = np.array([1.0, 0.0, 2.0, 1.0])
+    grid = np.array([1.0, 0.0, 1.25, 2.5, 3.75, 5.0])
+    form = Form("aux_schedule", "missing effect", grid[:, None] * shape[None, :],
+                strengths=grid, strength_param="aux_schedule.scale")
+    assert scaled(form, 5, 0.3) == (pytest.approx(1.5), None)
+    assert bound_reached(form, 5, 0.3) is None and bound_reached(form, 5, 1.2) == "upper"
+    assert scaled(form, 3, 1.0) == (pytest.approx(2.5), None)
+    bent = replace(form, signatures_w=np.array([shape * (1.0 + 0.5 * k * np.arange(4))
+                                                for k in range(len(grid))]))
+    assert scaled(bent, 5, 0.3) is None and bound_reached(bent, 5, 0.3) == "upper"
+
+
 def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, plain: bool = False,
-            **case_changes):
+            params=None, **case_changes):
     """A BMS log of a hidden-effect case (the project's model), its first ``hours``: current
     and voltage kept, with a current sensor's gain and offset (``plain``: made by the
-    baseline bus, the effect not there)."""
+    baseline bus, the effect not there; ``params``: the logged bus's own values)."""
     name = {None: "control", "cabin_hvac": "cabin_heating"}.get(effect, effect)
     case = replace(hidden.case(name), hours=hours, **case_changes)
     profile, _ = hidden.day_profile(case)
     truth = hidden.baseline_bus(case) if plain else hidden.true_bus(case)
-    frame = synthetic_log(truth.build(hidden.DT_S), profile,
+    frame = synthetic_log(truth.build(hidden.DT_S), profile, params=params,
                           soc_start=case.soc_start, soc_step_pct=0.1, seed=seed)
     rng = np.random.default_rng(seed)
     frame["battery_current_a"] = frame["battery_current_a"] * 1.006 + 0.3 + rng.normal(
@@ -131,6 +170,56 @@ def test_a_bms_log_gives_the_pack_its_counted_capacity(tmp_path):
     pack_ah = 3 * model.params[model.param_index("rint_battery.cell_capacity_ah")]
     # the sensor's gain error (0.6 %) is what separates the count from the truth
     assert counted_capacity_ah(profiles) == pytest.approx(pack_ah, rel=0.02)
+
+
+def bus_bins(model, profiles):
+    """The power path's bins of ``profiles`` (one day), the logged power and voltage in them."""
+    first = anchored_runs(model, profiles, model.params[None, :], TRACE)
+    bins = make_bins(profiles, [r[0] for r in first], [0] * len(profiles))
+    return bins, bins.means(log_power(profiles)), bins.means(log_voltage(profiles))
+
+
+def test_a_threshold_the_log_never_reaches_where_it_starts_is_still_fitted(tmp_path):
+    """The logged bus's motor brakes alone only up to 0.5 m/s^2 (the friction brakes take
+    the rest); the model starts at 5 m/s^2, a deceleration no bus reaches, where a step of
+    the parameter moves no bin's power and a Gauss-Newton step has no slope to follow. The
+    grid across its range finds it, and the motor's share of braking stays the logged bus's
+    (all of it) instead of standing in for the threshold. A bus that brakes up to 5 m/s^2
+    but stops regenerating below 3 m/s keeps its 5: the grid comes after the cutoff speed
+    has been fitted, which a lower deceleration would otherwise stand in for."""
+    decel, cutoff = "regen_cutoff.max_decel_mps2", "regen_cutoff.cutoff_speed_mps"
+    case = bms_day(None, hours=0.1)[0]
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    fitted = {}
+    for logged in ({decel: 0.5}, {cutoff: 3.0}):
+        _, frame = bms_day(None, hours=2.0, params=logged)
+        profiles = load(frame, tmp_path, "-".join(logged))
+        bins, power_w, voltage = bus_bins(model, profiles)
+        box = search_box(model)
+        names = list(box)
+        _, columns, change = _signatures(model, profiles, model.params, names, box)
+        assert decel in [names[j] for j in _dead(bins.means(columns).T[bins.fit], change)]
+        fitted[next(iter(logged))] = fit_bus(model, profiles, bins, power_w, voltage,
+                                             np.ones(len(bins))).values
+    assert fitted[decel][decel] == pytest.approx(0.5, abs=0.1)
+    assert fitted[decel]["regen_cutoff.max_share"] > 0.95
+    assert fitted[cutoff][cutoff] == pytest.approx(3.0, abs=0.4)
+    assert fitted[cutoff][decel] > 4.0
+
+
+def test_the_pack_resistance_comes_from_the_logged_voltage(tmp_path):
+    """A pack of twice the model's cell resistance: the logged voltage's drop under load
+    gives the model that resistance (within 10 %) before the bus is fitted; a pack as the
+    model's keeps its value."""
+    name = "rint_battery.cell_resistance_mohm"
+    case = bms_day(None, hours=0.1)[0]
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    own = model.params[model.param_index(name)]
+    for factor in (2.0, 1.0):
+        _, frame = bms_day(None, hours=2.0, params={name: factor * own})
+        profiles = load(frame, tmp_path, f"pack{factor}")
+        value = pack_resistance(model, profiles, model.params)[name]
+        assert value == pytest.approx(factor * own, rel=0.1)
 
 
 @pytest.mark.slow

@@ -7,7 +7,9 @@ usable capacity::
 
     q(t) = - int_0^t I dt / 3600 = Q (SoC(t) - SoC(0)) + c t      (least squares for Q, c)
 
-where ``c t`` takes up a current sensor's offset, which a count accumulates.
+where ``c t`` takes up a current sensor's offset, which a count accumulates. Its resistance
+is the model's times the logged voltage's drop under load over the model's
+(:func:`pack_resistance`).
 
 It sets the model's cell capacity before anything else: the pack's capacity decides how the
 SoC moves, so how the charger's CC/CV taper and the regen at high SoC go, and those decide
@@ -31,14 +33,19 @@ import numpy as np
 from ebus_env.diagnostics.heldout import Nuisance, fit_all
 from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
 from ebus_env.diagnostics.power import MODES, TRACE, Bins, anchored_runs
+from ebus_env.diagnostics.residual import anchored_run, make_windows
+from ebus_env.diagnostics.voltage import resistance_check
 
 PACK = ("rint_battery.cell_capacity_ah", "rint_battery.cell_resistance_mohm")
 BUS_PARAMETERS = {**{k: v for k, v in NUISANCE.items() if k not in PACK},
                   **RESOLVED_BY_CURRENT, "aero_drag.drag_coef": (0.7, 1.3),
+                  "regen_cutoff.cutoff_speed_mps": (0.0, 3.0),
                   "efficiency_map.regen_power_kw": (0.5, 1.25)}
 """The parameters fitted to a BMS log's power, with their search range as factors of the
-configured value (the diagnosis's bus-to-bus ranges, and two a log of the power resolves and
-a SoC log does not: the drag, and the motor's regenerative power limit)."""
+configured value (the diagnosis's bus-to-bus ranges, and three a log of the power resolves
+and a SoC log does not: the drag, the motor's regenerative power limit, and the speed below
+which it stops regenerating, one of the paper's uncertain parameters: a motor whose regen
+fades out between 1.5 and 4 m/s brakes as one that stops at about 2.7)."""
 SENSOR = {"current sensor gain": (-0.03, 0.03), "current sensor offset [A]": (-2.0, 2.0),
           "drivetrain loss while moving [kW]": (-2.0, 2.0)}
 """Terms of the logged power the bus's parameters do not give, each linear: the current
@@ -56,6 +63,14 @@ that follows the day, as the weather's effects do."""
 PER_DAY = ("current sensor gain", "current sensor offset [A]")
 STEP = 0.05  # a parameter's change for its signature, of its search range
 ITERATIONS = 4
+WAKE_AT = 2
+"""The Gauss-Newton step before which :func:`_wake` looks for dead parameters: after the
+others have had two steps, so that a dead threshold is not moved to take up what another
+parameter, still at its start, misses (a regen cutoff speed too low looks like a lower
+blending deceleration)."""
+GRID = 8
+"""Values across its range a parameter is tried at when its step moves no bin by a watt
+(:func:`_wake`), evenly on a log scale (a threshold's scale is what is unknown)."""
 MIN_SOC_SPAN = 0.05
 
 
@@ -107,6 +122,37 @@ def pack_values(model, profiles) -> dict[str, float]:
     strings = model.params[model.param_index(parallel)]
     lo, hi = model.bounds[model.param_index(name)]
     return {name: float(np.clip(capacity_ah / strings, lo, hi))}
+
+
+def resistance_check_at(model, profiles, params):
+    """The logged voltage's resistance check at ``params`` (:mod:`~ebus_env.diagnostics.voltage`),
+    with the 5-min windows and the window-anchored runs it was made on."""
+    every = max(1, int(round(1.0 / profiles[0].dt_s)))
+    windows = make_windows(profiles, 300.0, every)
+    anchored = [anchored_run(model, p, params, windows, k, every) for k, p in enumerate(profiles)]
+    return resistance_check(profiles, anchored, windows), windows, anchored
+
+
+def pack_resistance(model, profiles, params) -> dict[str, float]:
+    """The cell resistance the logged voltage gives: the model's at ``params`` times the log's
+    apparent resistance over the model's (the median over the 5-min windows off the charger,
+    :func:`~ebus_env.diagnostics.voltage.resistance_check`), within the bus-to-bus range of
+    :data:`~ebus_env.diagnostics.ladder.NUISANCE`; empty when the log does not show it.
+
+    The power a pack delivers does not show its resistance, but where its charger's CV phase
+    starts, and how much regen the cell voltage window lets in near full, follow it: a
+    resistance left twice too high moves power out of the model's charging and high-SoC
+    braking, which a missing-power test would take for a load or force there."""
+    check, _, _ = resistance_check_at(model, profiles, params)
+    name = model.equivalent("rint_battery.cell_resistance_mohm")
+    if check is None or name is None or not np.isfinite(check.level) or check.level <= 0:
+        return {}
+    i = model.param_index(name)
+    low, high = NUISANCE["rint_battery.cell_resistance_mohm"]
+    configured = model.params[i]
+    lo, hi = model.bounds[i]
+    value = float(params[i] * check.level)
+    return {name: float(np.clip(value, max(lo, low * configured), min(hi, high * configured)))}
 
 
 @dataclass
@@ -195,9 +241,14 @@ def fit_bus(model, profiles, bins: Bins, logged_w: np.ndarray, voltage_v: np.nda
                                np.append(sensor.low, low - params[index]),
                                np.append(sensor.high, high - params[index])), len(sensor.names)
 
-    for _ in range(iterations):
-        runs, columns, _ = _signatures(model, profiles, params, names, box)
+    for it in range(iterations):
+        runs, columns, change = _signatures(model, profiles, params, names, box)
         power, nuisance, k = nuisance_at(runs, columns)
+        if it == WAKE_AT and (dead := _dead(nuisance.x[use, k:], change)):
+            params = _wake(model, profiles, bins, logged_w, weights, params, names, box,
+                           dead, power, nuisance, k)
+            runs, columns, _ = _signatures(model, profiles, params, names, box)
+            power, nuisance, k = nuisance_at(runs, columns)
         local = Nuisance(nuisance.names, nuisance.x[use], nuisance.low, nuisance.high)
         _, _, step, _, _ = fit_all(logged_w[use] - power[use], weights[use], local)
         params = params.copy()
@@ -205,6 +256,48 @@ def fit_bus(model, profiles, bins: Bins, logged_w: np.ndarray, voltage_v: np.nda
     runs, columns, _ = _signatures(model, profiles, params, names, box)
     power, nuisance, k = nuisance_at(runs, columns)
     return BusFit(model, names, box, params, runs, nuisance, power, k)
+
+
+def _dead(columns: np.ndarray, change: np.ndarray) -> list[int]:
+    """The parameters whose step moves no fitted bin by a watt: a threshold the log never
+    reaches where the parameter starts, such as a brake-blending deceleration of 5 m/s^2 on a
+    bus that brakes at 1. A Gauss-Newton step sees no slope there and would leave them."""
+    moved = np.abs(columns * change).max(axis=0) if len(columns) else np.zeros(len(change))
+    return [j for j, m in enumerate(moved) if m < 1.0]
+
+
+def _wake(model, profiles, bins: Bins, logged_w, weights, params, names, box, dead,
+          power_w, nuisance: Nuisance, k: int) -> np.ndarray:
+    """Each :func:`_dead` parameter moved to the best of :data:`GRID` values across its box:
+    the one whose run leaves the least weighted missing power, with the sensor's terms and
+    the other parameters' signatures (at the start) free. One batched run for them all."""
+    use = bins.fit
+    at = TRACE.index("battery_power_w")
+    index = [model.param_index(n) for n in names]
+    rows, tried = [], []
+    for j in dead:
+        lo, hi = box[names[j]]
+        for value in (np.geomspace(lo, hi, GRID) if lo > 0 else np.linspace(lo, hi, GRID)):
+            row = params.copy()
+            row[index[j]] = value
+            rows.append(row)
+            tried.append((j, value))
+    traces = anchored_runs(model, profiles, np.array(rows), TRACE)
+    out = params.copy()
+    for j in dead:
+        keep = [c for c in range(nuisance.x.shape[1]) if c != k + j]
+        local = Nuisance([nuisance.names[c] for c in keep], nuisance.x[use][:, keep],
+                         nuisance.low[keep], nuisance.high[keep])
+        best = (fit_all(logged_w[use] - power_w[use], weights[use], local)[4], params[index[j]])
+        for r, (jj, value) in enumerate(tried):
+            if jj != j:
+                continue
+            p = bins.means([t[r, :, at] for t in traces])
+            loss = fit_all(logged_w[use] - p[use], weights[use], local)[4]
+            if loss < best[0]:
+                best = (loss, value)
+        out[index[j]] = best[1]
+    return out
 
 
 def sensor_columns(bins: Bins, power_w: np.ndarray, voltage_v: np.ndarray) -> Nuisance:

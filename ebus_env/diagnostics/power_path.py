@@ -42,7 +42,13 @@ from ebus_env.diagnostics.power_candidates import (
     from_day,
     outside_forms,
 )
-from ebus_env.diagnostics.power_fit import fit_bus, pack_values
+from ebus_env.diagnostics.power_fit import (
+    fit_bus,
+    pack_resistance,
+    pack_values,
+    resistance_check_at,
+)
+from ebus_env.diagnostics.voltage import explain_change
 
 ALPHA = 0.01
 """The chance, on a day with nothing missing, that some candidate passes, over all the
@@ -202,7 +208,8 @@ def energy_kwh(test: Test, form: Form) -> float:
 
 def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, block,
                 seconds: float) -> dict:
-    """The form's strength (its parameter's value at the chosen signature) and the energy it
+    """The form's strength (its parameter's value at the chosen signature, or at the fitted
+    size of a form whose strengths differ only in size: :func:`scaled`) and the energy it
     adds over the logs [kWh], with 90 % intervals: the strengths whose fit lies within 2.71
     noise units of the best (what the shape of the data allows), refits on blocks resampled
     with replacement (what its noise allows) and, for the energy, :data:`FORM_SPREAD`.
@@ -210,12 +217,17 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     total = form.signatures_w.sum(axis=1) * seconds / 3.6e6  # kWh per unit coefficient
     unit = noise_unit(y - test.fitted, w)
     energies, values = [], []
+
+    def value(k: int, beta: float) -> float:
+        by_size = scaled(form, k, beta)
+        return form.strengths[k] if by_size is None else by_size[0]
+
     for k in range(len(signatures)):
         _, beta, _, _, loss = fit_all(y, w, nuisance, signatures[k:k + 1])
         if (loss - test.loss) / unit <= 2.71:
             energies.append(beta * total[k])
             if form.strengths is not None:
-                values.append(form.strengths[k])
+                values.append(value(k, beta))
     rng = np.random.default_rng(SEED)
     blocks = np.unique(block)
     for _ in range(BOOT):
@@ -225,7 +237,7 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
         k, beta, *_ = fit_all(y[rows], w[rows], part, signatures[:, rows])
         energies.append(beta * total[k])
         if form.strengths is not None:
-            values.append(form.strengths[k])
+            values.append(value(k, beta))
     energy = float(test.beta * total[test.choice])
     low, high = np.quantile(energies, [0.05, 0.95])
     spread = math.exp(1.645 * FORM_SPREAD)
@@ -234,7 +246,7 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
                                    float(max(high, energy * spread))],
            "coefficient": test.beta}
     if form.strengths is not None and form.strength_param:
-        out["parameters"] = {form.strength_param: float(form.strengths[test.choice])}
+        out["parameters"] = {form.strength_param: float(value(test.choice, test.beta))}
         low, high = np.quantile(values, [0.05, 0.95])
         grid = np.sort(np.asarray(form.strengths, float))
         # no finer than the grid of strengths tried: out to halfway to the next ones
@@ -245,11 +257,55 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     return out
 
 
-def bound_reached(form: Form, choice: int) -> str | None:
-    """``"lower"`` or ``"upper"`` where the strength a form was fitted at is an end of its
-    parameter's declared range (its signatures span the range, ends included), else None."""
+PARALLEL = 0.99
+"""The cosine between signatures above which a form's strengths differ only in size (a
+load's scale): its fitted size then says its strength (:func:`scaled`)."""
+
+
+def scaled(form: Form, choice: int, beta: float) -> tuple[float, str | None] | None:
+    """For a form whose signatures differ only in size across its strengths, the strength whose
+    signature is the fitted power ``beta`` times the chosen one, interpolated in the
+    signatures' sizes, and the end of the range the fit lies beyond ("lower", "upper"; None
+    inside). None for a form whose shape changes with its strength (a regen limit's SoC),
+    where the chosen signature says the strength.
+
+    The held-out test fits a coefficient beside the chosen signature, so a load's signature
+    at scale 5 times 0.3 is a scale of 1.5: reading the strength off the chosen signature
+    alone would overstate it, and call it a bound where it is not."""
     if form.strengths is None or len(form.strengths) < 3:
         return None
+    sig = np.asarray(form.signatures_w, float)
+    ref = sig[choice]
+    norm = float(np.linalg.norm(ref))
+    if norm <= 0.0:
+        return None
+    size = sig @ ref / norm**2  # each signature's size, the chosen one's 1
+    lengths = np.linalg.norm(sig, axis=1)
+    on = lengths > 1e-9 * norm
+    if np.any(np.abs(sig[on] @ ref) / (lengths[on] * norm) < PARALLEL):
+        return None
+    values = np.asarray(form.strengths, float)
+    order = np.argsort(size)
+    size, values = size[order], values[order]
+    if np.any(np.diff(values) < 0) and np.any(np.diff(values) > 0):
+        return None  # the size does not follow the strength one way
+    rising = values[-1] >= values[0]
+    if beta > size[-1]:
+        return float(values[-1]), "upper" if rising else "lower"
+    if beta < size[0]:
+        return float(values[0]), "lower" if rising else "upper"
+    return float(np.interp(beta, size, values)), None
+
+
+def bound_reached(form: Form, choice: int, beta: float = 1.0) -> str | None:
+    """``"lower"`` or ``"upper"`` where the strength a form was fitted at (``choice``, with
+    coefficient ``beta``: :func:`scaled`) is an end of its parameter's declared range (its
+    signatures span the range, ends included), else None."""
+    if form.strengths is None or len(form.strengths) < 3:
+        return None
+    by_size = scaled(form, choice, beta)
+    if by_size is not None:
+        return by_size[1]
     values = np.asarray(form.strengths, float)
     value = values[choice]
     if value <= values.min():
@@ -264,9 +320,11 @@ def implausible_why(form: Form, test: Test, side: str) -> str:
     :mod:`~ebus_env.diagnostics.stage06_attribution`, without a re-calibration to settle
     it: here the bus's parameters are already free)."""
     values = np.asarray(form.strengths, float)
+    by_size = scaled(form, test.choice, test.beta)
+    value = values[test.choice] if by_size is None else by_size[0]
     return (f"the shape of {label(form)} fits (chi-square {test.chi2:.0f}), the strength is "
             f"implausible: {form.strength_param} ends at its {side} bound, "
-            f"{values[test.choice]:.4g} (range {values.min():.4g} to {values.max():.4g}), "
+            f"{value:.4g} (range {values.min():.4g} to {values.max():.4g}), "
             "with every bus-to-bus parameter free beside it (its form differs from what the "
             "log shows)")
 
@@ -304,13 +362,7 @@ def voltage_evidence(model, profiles, params, candidates):
     """What the logged voltage says of the pack's resistance over the model's, and which
     library effect reproduces a change of it over the log
     (:mod:`~ebus_env.diagnostics.voltage`); None without a change to show."""
-    from ebus_env.diagnostics.residual import anchored_run, make_windows
-    from ebus_env.diagnostics.voltage import explain_change, resistance_check
-
-    every = max(1, int(round(1.0 / profiles[0].dt_s)))
-    windows = make_windows(profiles, 300.0, every)
-    anchored = [anchored_run(model, p, params, windows, k, every) for k, p in enumerate(profiles)]
-    check = resistance_check(profiles, anchored, windows)
+    check, windows, anchored = resistance_check_at(model, profiles, params)
     if check is not None and check.changes:
         check.explained_by = explain_change(check, profiles, anchored, windows,
                                             np.ones(len(windows), bool), candidates)
@@ -340,6 +392,9 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     fixed = dict(fixed or {})
     model = bus.build(profiles[0].dt_s)
     pack = {k: v for k, v in pack_values(model, profiles).items() if k not in fixed}
+    start = {**pack, **fixed}
+    resistance = pack_resistance(model, profiles, model.param_vector(model.carry_over(start)))
+    pack.update({k: v for k, v in resistance.items() if k not in fixed})
     start = {**pack, **fixed}
     first = anchored_runs(model, profiles, model.param_vector(model.carry_over(start)), TRACE)
     bins = make_bins(profiles, [r[0] for r in first], day_of)
@@ -374,7 +429,7 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                     and by_label[k].since_day == finding.since_day)
         form = by_label[best.name]
         finding.fall = best.gain
-        side = bound_reached(form, best.choice)
+        side = bound_reached(form, best.choice, best.beta)
         if side:  # withdrawn: no strength to give
             finding.why = implausible_why(form, best, side)
             finding.status, finding.verdict = "implausible", None
