@@ -32,11 +32,15 @@ from ebus_env.diagnostics.power_fit import (
     sensor_columns,
 )
 from ebus_env.diagnostics.power_path import (
+    MIN_OUTSIDE_KW,
     bound_reached,
+    decide,
     diagnose_power,
     needed,
+    outside_kw,
     pack_resistance,
     scaled,
+    separated,
 )
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log
@@ -105,6 +109,48 @@ def test_each_day_has_its_own_current_sensor_gain_and_offset():
     assert len(shared.names) == 3
     *_, loss_shared = fit_all(logged_w - power_w, w, shared)
     assert np.sqrt(loss_shared / n) > 300.0  # W: each day's 0.8 % of the power is left
+
+
+def test_a_load_from_a_day_on_must_split_the_days_where_it_starts():
+    """A bus meets another driver most days, and its power while accelerating spreads by
+    some tenths of a kW from day to day: days 3-5 may lie higher on average without a change
+    on day 3 (day 5 lies below day 1), and a load from day 3 is then no change from that day.
+    A load of 1 kW that starts on day 3 lifts every later day above every earlier one."""
+    rng = np.random.default_rng(8)
+    day = np.repeat(np.arange(6), 500)
+    n = len(day)
+    share = np.zeros((n, len(MODES)))
+    share[:, MODES.index("accelerating")] = 1.0
+    bins = Bins(profile=day, first=np.tile(np.arange(500) * 10, 6), day=day,
+                block=np.arange(n) // 60, hour=np.full(n, 12.0), fit=np.ones(n, bool),
+                mode_share=share, seconds=10)
+    load = 1e3 * share[:, MODES.index("accelerating")]  # a load while accelerating, 1 kW
+    drivers_kw = np.array([0.3, 0.9, -0.5, 1.3, 0.9, 0.2])  # a truth-simulator control bus
+    w = np.ones(n)
+    for change_kw, split in ((0.0, False), (1.0, True)):
+        y = 1e3 * (drivers_kw + change_kw * (np.arange(6) >= 3))[day] + rng.normal(
+            0.0, 300.0, n)
+        assert separated(load, 3, y, w, bins, bins.fit) == split
+        assert separated(load, 0, y, w, bins, bins.fit)  # every day: nothing to split
+
+
+def test_a_load_outside_the_library_too_small_for_a_workshop_is_not_reported():
+    """A load while charging of 0.1 kW stands far above the noise of a steady charger, yet is
+    a few lamps: the diagnosis reports nothing; one of 2 kW is a load outside the library."""
+    rng = np.random.default_rng(2)
+    n = 3000
+    on = ((np.arange(n) // 100) % 10 == 0).astype(float)  # a tenth of the time on a charger
+    constant = Nuisance(["c"], np.ones((n, 1)), np.array([-1e4]), np.array([1e4]))
+    form = Form("load while charging", "outside", 1e3 * on[None, :], "an unknown load")
+    for load_kw, status in ((0.1, "noise"), (2.0, "outside library")):
+        y = 1e3 * load_kw * on + rng.normal(0.0, 50.0, n)
+        held = HeldOut(y, np.full(n, 1.0 / 50.0**2), constant, np.arange(n) // 60)
+        test = held.test(form.name, form.signatures_w)
+        assert test.chi2 > needed(1)
+        size = outside_kw(test, form.signatures_w[0], held.null_fitted)
+        assert size == pytest.approx(load_kw, rel=0.05)  # whatever the constant took
+        assert decide({form.name: test}, {form.name: form}, {form.name: size})[0] == status
+    assert 0.1 < MIN_OUTSIDE_KW < 2.0
 
 
 def test_a_strength_at_an_end_of_its_range_is_told_from_one_inside_it():

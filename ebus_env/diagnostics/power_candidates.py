@@ -60,8 +60,11 @@ def outside_forms(profiles, bins: Bins, base_runs: list[np.ndarray]) -> list[For
         share = bins.mode_share[:, j]
         if share.sum() * bins.seconds < 600.0:  # ten minutes at least
             continue
+        # on a charger, a charger that gives less than the log's rating draws the same
+        # (a rating stated on the grid side): the log cannot tell them apart
+        also = " (or a charger short of its logged rating)" if mode == "charging" else ""
         out.append(Form(f"load while {mode}", "outside", 1e3 * share[None, :],
-                        f"an unknown load of a kW while {mode}"))
+                        f"an unknown load of a kW while {mode}{also}"))
     doors, force = [], []
     v_at = TRACE.index("speed_mps")
     for p, run in zip(profiles, base_runs, strict=True):

@@ -7,7 +7,9 @@
    days each of them from a day on (:mod:`~ebus_env.diagnostics.power_candidates`).
 3. Each tested against the bus-to-bus parameters alone on held-out blocks
    (:mod:`~ebus_env.diagnostics.heldout`): the held-out loss it removes, in noise units
-   (``chi2``), and the decision (:func:`decide`).
+   (``chi2``), and the decision (:func:`decide`). A load or force outside the library is
+   reported from :data:`MIN_OUTSIDE_KW` on, and from a day on only where the days split
+   there (:func:`separated`).
 4. The named effect's strength and the energy it adds, with intervals (a strength at an end
    of its parameter's range withdraws the name: :func:`bound_reached`); from which day it acts
    on several days; the missing power by operating mode; what the logged voltage says of the
@@ -145,8 +147,53 @@ def since(tests: dict[str, Test], forms: dict[str, Form], name: str) -> tuple[in
     return day, (min(close), max(close))
 
 
-def decide(tests: dict[str, Test], forms: dict[str, Form]
-           ) -> tuple[str, str | None, str, str | None]:
+MIN_OUTSIDE_KW = 0.3
+"""The least power a load or force outside the library must draw where it acts for the
+diagnosis to report it: less is a few lamps, no matter for a workshop, and within what the
+model's own 1 Hz drivetrain and charger leave between like buses (a few hundred watts)."""
+
+
+def outside_kw(test: Test, signature_w: np.ndarray, null_fitted: np.ndarray) -> float:
+    """The power [kW] a form outside the library tells apart: what its fit adds to the
+    prediction (against the fit without it, ``null_fitted``) on the bins where it acts
+    (``signature_w``, at its chosen strength, above a twentieth of its largest) less what it
+    adds on the others, the bus's parameters and the sensor's terms refitted beside it.
+    A compressor after each door closing that the auxiliary load took in part counts whole;
+    a load while charging fitted at 3 kW that frees the current sensor's gain to take the
+    3 kW back on the charger (and fit a difference while driving) counts nothing."""
+    acting = signature_w > 0.05 * signature_w.max()
+    if not acting.any():
+        return 0.0
+    change = test.fitted - null_fitted
+    elsewhere = float(np.mean(change[~acting])) if (~acting).any() else 0.0
+    return (float(np.mean(change[acting])) - elsewhere) / 1e3
+
+
+def separated(signature_w: np.ndarray, since_day: int, missing_w: np.ndarray,
+              weights: np.ndarray, bins, use: np.ndarray) -> bool:
+    """Whether the days split at ``since_day``: a form's size (``signature_w``: its signature
+    on every day) fitted on each day alone (``sum w s y / sum w s^2`` over the day's bins) is
+    larger on every day from then than on any day before. A change that starts on a day and
+    stays splits them; the days' own spread (a bus meets another driver most days) does not,
+    and a form from a day that only picks the days a spread happened to favour is no change
+    from that day. With three days on each side, days that differ only by chance split so
+    one time in 20."""
+    if since_day == 0:
+        return True
+    s = signature_w
+    size = {}
+    for d in range(int(bins.day.max()) + 1):
+        on = use & (bins.day == d) & (s != 0)
+        if on.any():
+            size[d] = float(np.sum(weights[on] * s[on] * missing_w[on])
+                            / np.sum(weights[on] * s[on] ** 2))
+    before = [v for d, v in size.items() if d < since_day]
+    after = [v for d, v in size.items() if d >= since_day]
+    return not before or not after or min(after) > max(before)
+
+
+def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, float],
+           tried: int | None = None) -> tuple[str, str | None, str, str | None]:
     """(status, the named effect or None, why, the operating-mode clue or None).
 
     A library effect is named when its held-out chi-square passes :func:`needed` for the
@@ -154,11 +201,14 @@ def decide(tests: dict[str, Test], forms: dict[str, Form]
     :data:`APART` of it, and no form outside the library predicts clearly better (then the
     library's effect explains only part). Where no library effect passes and a form outside
     it does, no library effect explains the missing power, and the form says where it goes
-    missing."""
-    threshold = needed(len(tests))
+    missing. A form outside the library counts from :data:`MIN_OUTSIDE_KW` of its size
+    (``sizes_kw``: :func:`outside_kw` by test name). ``tried``: the candidates tested
+    (default: those in ``tests``)."""
+    threshold = needed(tried or len(tests))
     ranked = sorted(tests.values(), key=lambda t: -t.chi2)
     library = [t for t in ranked if forms[t.name].kind != "outside"]
-    outside = [t for t in ranked if forms[t.name].kind == "outside"]
+    outside = [t for t in ranked if forms[t.name].kind == "outside"
+               and sizes_kw[t.name] >= MIN_OUTSIDE_KW]
     best_out = outside[0] if outside and outside[0].chi2 >= threshold else None
 
     def best_of(effect):
@@ -419,7 +469,14 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                         fit.nuisance.high)
     held = HeldOut(missing[use], weights[use], nuisance, bins.block[use])
     tests = {name: held.test(name, f.signatures_w[:, use]) for name, f in by_label.items()}
-    status, verdict, why, clue = decide(tests, by_label)
+    # a form outside the library from a day on must split the days there (the days' own
+    # spread is no change from a day)
+    credible = {k: t for k, t in tests.items() if by_label[k].kind != "outside"
+                or separated(by_label[by_label[k].name].signatures_w[0],
+                             by_label[k].since_day, missing, weights, bins, use)}
+    sizes = {k: outside_kw(t, by_label[k].signatures_w[t.choice][use], held.null_fitted)
+             for k, t in tests.items() if by_label[k].kind == "outside"}
+    status, verdict, why, clue = decide(credible, by_label, sizes, len(tests))
     finding = Finding(status, verdict, why, 0, (0, 0), clue,
                       sorted(tests.values(), key=lambda t: -t.chi2), by_label,
                       needed(len(tests)))
@@ -439,9 +496,9 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                                            missing[use], weights[use], nuisance,
                                            bins.block[use], BIN_S)
     elif status == "outside library" and tests:
-        top = max((t for k, t in tests.items() if by_label[k].kind == "outside"),
-                  key=lambda t: t.chi2)
-        finding.since_day, finding.since_interval = since(tests, by_label,
+        top = max((t for k, t in credible.items() if by_label[k].kind == "outside"
+                   and sizes[k] >= MIN_OUTSIDE_KW), key=lambda t: t.chi2)
+        finding.since_day, finding.since_interval = since(credible, by_label,
                                                           by_label[top.name].name)
     finding.modes = mode_table(missing, weights, bins, use)
     say("the pack's resistance from the logged voltage")
