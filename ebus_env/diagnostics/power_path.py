@@ -148,9 +148,9 @@ def since(tests: dict[str, Test], forms: dict[str, Form], name: str) -> tuple[in
 
 
 MIN_OUTSIDE_KW = 0.3
-"""The least power a load or force outside the library must draw where it acts for the
-diagnosis to report it: less is a few lamps, no matter for a workshop, and within what the
-model's own 1 Hz drivetrain and charger leave between like buses (a few hundred watts)."""
+"""The least power a load or force outside the library must tell apart (:func:`outside_kw`)
+for the diagnosis to report it: less is a few lamps, no matter for a workshop, and within what
+the model's own 1 Hz drivetrain and charger leave between like buses (a few hundred watts)."""
 
 
 def outside_kw(test: Test, signature_w: np.ndarray, null_fitted: np.ndarray) -> float:
