@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import t as t_dist
 
 from ebus_env.diagnostics.candidates import strength_rows
 from ebus_env.diagnostics.residual import (
@@ -122,6 +123,8 @@ class ResistanceCheck:
     significance: float  # of the periods' ratios' spread about the level, in sd
     model_ohm: np.ndarray  # the model's apparent resistance per window (the ratio's base)
     explained_by: list = field(default_factory=list)  # VoltageFit, best first
+    ratio: np.ndarray | None = None  # the log's over the model's, per window (NaN: not seen)
+    step: ResistanceStep | None = None  # a rise from a day on, on several days
 
     @property
     def changes(self) -> bool:
@@ -136,6 +139,9 @@ class ResistanceCheck:
 
     def finding(self) -> str:
         """One sentence for the report."""
+        if self.step is not None:
+            return (f"The logged voltage shows {self.step.rose()} from day "
+                    f"{self.step.since_day} on (day 0 the first).")
         first, last = self.periods[0]["ratio"], self.periods[-1]["ratio"]
         if self.changes:
             best = self.best
@@ -157,7 +163,7 @@ class ResistanceCheck:
         return {"level": self.level, "change": self.change, "span": self.span,
                 "significance": self.significance, "changes": self.changes,
                 "periods": self.periods, "explained_by": [f.to_json() for f in self.explained_by],
-                "finding": self.finding()}
+                "step": self.step.to_json() if self.step else None, "finding": self.finding()}
 
 
 def resistance_check(profiles, anchored, windows: Windows,
@@ -182,7 +188,7 @@ def resistance_check(profiles, anchored, windows: Windows,
     chi2, dof = float(np.sum(((value - mean) / se) ** 2)), len(periods) - 1
     return ResistanceCheck(periods, level, float((value[-1] - value[0]) / level),
                            float((value.max() - value.min()) / level),
-                           float((chi2 - dof) / np.sqrt(2.0 * dof)), model)
+                           float((chi2 - dof) / np.sqrt(2.0 * dof)), model, ratio=ratio)
 
 
 @dataclass
@@ -300,3 +306,122 @@ def band(x: np.ndarray, cost: np.ndarray, level: float) -> tuple[float, float]:
         return float(x[k] + (x[k + step] - x[k]) * (level - a) / (b - a))
 
     return crossing(-1), crossing(1)
+
+
+# -- several days of one bus: a rise from a day on ---------------------------------------
+STEP_ALPHA = 0.01
+"""The chance, on a bus whose pack did not change, that a rise from some day passes, over all
+the start days tried together (Bonferroni)."""
+WEATHER_SPREAD_K = 2.0
+"""Days whose mean ambient spreads by this much or more get a weather term beside the rise:
+an unmanaged pack's resistance follows its temperature (about 3-4 % per kelvin, Waag et al.
+2013), and a cold spell from a day on is no weak cell."""
+
+
+@dataclass
+class ResistanceStep:
+    """The pack's resistance risen from a day on: each day's apparent resistance over the
+    model's (:func:`daily_ratios`), fitted by :func:`resistance_step`."""
+
+    since_day: int
+    since_days: tuple[int, int]  # the start days that pass as well
+    rise: float  # R from since_day on over R before, less one
+    interval: tuple[float, float]  # of ``rise``, 90 %
+    t: float  # ln(1 + rise) over its standard error
+    needed: float  # the t it needed (the start days tried counted)
+    days: list[float]  # each day's ratio (NaN: no window showed it)
+    weather: bool  # whether the days' ambient was fitted beside it
+
+    def rose(self) -> str:
+        """How much the resistance rose, and how surely."""
+        low, high = self.interval
+        return (f"the pack's resistance {100 * self.rise:.0f} % higher (90 %: {100 * low:.0f} "
+                f"to {100 * high:.0f} %; {self.t:.1f} standard errors of the days' scatter, "
+                f"{self.needed:.1f} needed"
+                + (", the days' weather fitted beside it" if self.weather else "") + ")")
+
+    def to_json(self) -> dict:
+        return {"since_day": self.since_day, "since_days": list(self.since_days),
+                "rise": self.rise, "interval": list(self.interval), "t": self.t,
+                "needed": self.needed, "days": self.days, "weather": self.weather}
+
+
+def daily_ratios(ratio: np.ndarray, windows: Windows, day_of: list[int]) -> np.ndarray:
+    """Each day's median of the per-window ratio (NaN for a day no window shows)."""
+    day = np.asarray(day_of)[windows.profile_index]
+    out = np.full(int(max(day_of)) + 1, np.nan)
+    for d in range(len(out)):
+        x = ratio[(day == d) & np.isfinite(ratio)]
+        if len(x):
+            out[d] = float(np.median(x))
+    return out
+
+
+def resistance_step(ratio_by_day: np.ndarray, ambient_by_day: np.ndarray | None = None,
+                    alpha: float = STEP_ALPHA) -> ResistanceStep | None:
+    """A rise of the pack's resistance from a day on, or None.
+
+    A weak cell group (a cell's capacity and resistance gone in a string it limits) or a
+    worn connection raises the pack's resistance from the day it happens and keeps it there.
+    For each start day N, each day's ratio is fitted as::
+
+        ln r_d = a + b T_d + c [d >= N] + e_d,      b <= 0
+
+    with T_d the day's mean ambient where the days' weather spreads by
+    :data:`WEATHER_SPREAD_K` (an unmanaged pack is more resistive when cold, never less), and
+    the days' own scatter ``e_d`` (the pack's polarisation at each day's currents) as the
+    noise: its standard deviation from the fit's residuals. A start day passes where the
+    rise is at least :data:`MIN_CHANGE`, its t (``c`` over its standard error) passes the
+    one-sided t test at ``alpha`` over the start days tried, and the days split there: each
+    day from N, its weather taken off, above every day before. The best t is the start."""
+    y_all = np.log(np.asarray(ratio_by_day, float))
+    seen = np.isfinite(y_all)
+    days = np.flatnonzero(seen)
+    starts = [n for n in range(1, len(y_all)) if days.min() < n <= days.max()]
+    if len(days) < 4 or not starts:
+        return None
+    y = y_all[seen]
+    temp = None if ambient_by_day is None else np.asarray(ambient_by_day, float)[seen]
+    weather = temp is not None and bool(np.all(np.isfinite(temp))) \
+        and float(np.ptp(temp)) >= WEATHER_SPREAD_K
+    found = []
+    for n in starts:
+        step = (days >= n).astype(float)
+        fit = _step_fit(y, step, temp if weather else None)
+        if fit is None:
+            continue
+        c, se, dof, b = fit
+        needed = float(t_dist.isf(alpha / len(starts), dof))
+        level = y - b * (temp if weather and temp is not None else 0.0)
+        split = level[step > 0].min() > level[step == 0].max()
+        if c >= np.log1p(MIN_CHANGE) and c / se >= needed and split:
+            half = float(t_dist.isf(0.05, dof)) * se
+            found.append((c / se, n, c, half, needed, b != 0.0))
+    if not found:
+        return None
+    t, n, c, half, needed, with_weather = max(found)
+    passing = [f[1] for f in found]
+    return ResistanceStep(n, (min(passing), max(passing)), float(np.expm1(c)),
+                          (float(np.expm1(c - half)), float(np.expm1(c + half))), float(t),
+                          needed, [float(r) for r in ratio_by_day], with_weather)
+
+
+def _step_fit(y: np.ndarray, step: np.ndarray, temp: np.ndarray | None):
+    """(c, its standard error, the residual degrees of freedom, b) of ln r = a + b T + c
+    step by least squares, b held at 0 where it would come out positive; None with fewer than
+    two degrees of freedom left."""
+    for columns in ([np.ones_like(y), step, temp], [np.ones_like(y), step]):
+        if any(col is None for col in columns):
+            continue
+        a = np.column_stack(columns)
+        dof = len(y) - a.shape[1]
+        if dof < 2:
+            return None
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        if a.shape[1] == 3 and coef[2] > 0.0:
+            continue  # warmer days more resistive: no weather term then
+        resid = y - a @ coef
+        cov = np.linalg.pinv(a.T @ a) * float(resid @ resid) / dof
+        b = float(coef[2]) if a.shape[1] == 3 else 0.0
+        return float(coef[1]), float(np.sqrt(max(cov[1, 1], 1e-300))), dof, b
+    return None
