@@ -324,6 +324,47 @@ def test_several_days_of_a_bus_name_the_effect_and_the_day_it_started(tmp_path):
     assert q.status in ("noise", "outside library") and q.since is None, q.sentence
 
 
+@pytest.mark.slow
+def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_then(tmp_path):
+    """Four half-hour days of one bus whose cells' resistance is 25 % higher from the third
+    day on (a weak cell group): the logged voltage dates the rise and sizes it, the power path
+    names the library's ageing from that day with the energy the added resistance costs; the
+    same days without the rise show none."""
+    from ebus_env.diagnostics.power_path import voltage_evidence
+
+    name = "rint_battery.cell_resistance_mohm"
+    case = bms_day(None, hours=0.1)[0]
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    own = model.params[model.param_index(name)]
+    for rise in (0.25, 0.0):
+        profiles, day_of = [], []
+        for k, seed in enumerate((5, 6, 7, 8)):
+            factor = 1.0 + rise if k >= 2 else 1.0
+            _, frame = bms_day(None, hours=0.5, seed=seed, params={name: factor * own})
+            for p in load(on_day(frame, k), tmp_path, f"r{rise}-day{k}"):
+                profiles.append(p)
+                day_of.append(k)
+        check = voltage_evidence(model, profiles, model.params, [], day_of)
+        if rise == 0.0:
+            assert check.step is None
+            continue
+        step = check.step
+        assert step.since_day == 2 and step.rise == pytest.approx(rise, rel=0.02)
+        run = diagnose_power(hidden.baseline_bus(case), profiles, day_of)
+        f = run.finding
+        assert (f.status, f.verdict, f.since_day) == ("voltage", "static_rcd", 2), f.why
+        # ohm * A^2 h: the added resistance's loss over the days from the rise, within 25 %
+        series, strings = (model.params[model.param_index(f"rint_battery.cells_{n}")]
+                           for n in ("series", "parallel"))
+        pack_ohm = own * 1e-3 * series / strings
+        amp2_h = sum(np.nansum(p.measured["battery_current_a"] ** 2) * p.dt_s / 3600.0
+                     for p, d in zip(profiles, day_of, strict=True) if d >= 2)
+        assert f.strength["energy_kwh"] == pytest.approx(rise * pack_ohm * amp2_h / 1e3,
+                                                         rel=0.25)
+        low, high = f.strength["interval"]["static_rcd.rcd_frac"]
+        assert low < rise / 1.5 < high
+
+
 def test_a_folder_of_logs_reads_as_its_days_in_order(tmp_path):
     """``ebus diagnose FOLDER``: the folder's logs, sorted by name (the days of one bus in
     order); other files are not logs; a folder without logs is an error that names it."""

@@ -50,7 +50,9 @@ from ebus_env.diagnostics.power_fit import (
     pack_values,
     resistance_check_at,
 )
-from ebus_env.diagnostics.voltage import explain_change
+from ebus_env.diagnostics.voltage import daily_ratios, explain_change, resistance_step
+from ebus_env.effects import registered_effects
+from ebus_env.signals import SLOTS
 
 ALPHA = 0.01
 """The chance, on a day with nothing missing, that some candidate passes, over all the
@@ -192,6 +194,12 @@ def separated(signature_w: np.ndarray, since_day: int, missing_w: np.ndarray,
     return not before or not after or min(after) > max(before)
 
 
+def reportable(name: str, forms: dict[str, Form], sizes_kw: dict[str, float]) -> bool:
+    """Whether test ``name`` is of a form outside the library large enough to report
+    (:data:`MIN_OUTSIDE_KW`)."""
+    return forms[name].kind == "outside" and sizes_kw[name] >= MIN_OUTSIDE_KW
+
+
 def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, float],
            tried: int | None = None) -> tuple[str, str | None, str, str | None]:
     """(status, the named effect or None, why, the operating-mode clue or None).
@@ -207,8 +215,7 @@ def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, f
     threshold = needed(tried or len(tests))
     ranked = sorted(tests.values(), key=lambda t: -t.chi2)
     library = [t for t in ranked if forms[t.name].kind != "outside"]
-    outside = [t for t in ranked if forms[t.name].kind == "outside"
-               and sizes_kw[t.name] >= MIN_OUTSIDE_KW]
+    outside = [t for t in ranked if reportable(t.name, forms, sizes_kw)]
     best_out = outside[0] if outside and outside[0].chi2 >= threshold else None
 
     def best_of(effect):
@@ -408,15 +415,57 @@ def mode_table(residual, w, bins, use) -> list[dict]:
             for m, c, s, h in zip(MODES, coef, se, hours, strict=True)]
 
 
-def voltage_evidence(model, profiles, params, candidates):
-    """What the logged voltage says of the pack's resistance over the model's, and which
-    library effect reproduces a change of it over the log
-    (:mod:`~ebus_env.diagnostics.voltage`); None without a change to show."""
+def voltage_evidence(model, profiles, params, candidates, day_of: list[int]):
+    """What the logged voltage says of the pack's resistance over the model's, which library
+    effect reproduces a change of it over the log (:mod:`~ebus_env.diagnostics.voltage`),
+    and on several days whether it rose from a day on (``check.step``); None without a
+    change to show."""
     check, windows, anchored = resistance_check_at(model, profiles, params)
     if check is not None and check.changes:
         check.explained_by = explain_change(check, profiles, anchored, windows,
                                             np.ones(len(windows), bool), candidates)
+    if check is not None and check.ratio is not None and max(day_of) > 0:
+        ambient = np.array([np.mean([np.mean(p.channel("ambient_degc"))
+                                     for p, d in zip(profiles, day_of, strict=True) if d == day])
+                            for day in range(max(day_of) + 1)])
+        check.step = resistance_step(daily_ratios(check.ratio, windows, day_of), ambient)
     return check
+
+
+AGEING = "static_rcd"
+"""The library's ageing: capacity x (1 - RCD), resistance x (1 + k_R RCD)."""
+
+
+RESISTANCE_GROWTH = (1.0, 2.0)
+"""The resistance's growth per unit of lost capacity, k_R, a pack may have: a resistance
+rise of x is a capacity fade of x / k_R (docs/physics.md §5.5)."""
+
+
+def step_strength(step, check, model, profiles, day_of: list[int]) -> dict:
+    """The ageing a resistance rise says (``step``: :class:`~ebus_env.diagnostics.voltage.
+    ResistanceStep`): the capacity fade RCD = rise / k_R at the library's k_R, its 90 %
+    interval from the rise's and :data:`RESISTANCE_GROWTH` (k_R: the bus's where it has the
+    effect); and the energy the pack loses
+    to the added resistance from its start day, ``rise R I^2`` over the logged current
+    (R: the model's apparent pack resistance at the days before's level), with the rise's
+    interval and :data:`FORM_SPREAD`."""
+    growth = model.equivalent(f"{AGEING}.resistance_growth")
+    k_r = float(model.params[model.param_index(growth)] if growth is not None else next(
+        p.default for p in registered_effects()[AGEING].params if p.name == "resistance_growth"))
+    strength_param = f"{AGEING}.rcd_frac"
+    before = [r for d, r in enumerate(step.days) if d < step.since_day and np.isfinite(r)]
+    ohm = float(np.nanmedian(check.model_ohm)) * float(np.median(before))
+    amp2_h = sum(float(np.nansum(p.measured["battery_current_a"] ** 2)) * p.dt_s / 3600.0
+                 for p, d in zip(profiles, day_of, strict=True) if d >= step.since_day)
+    per_rise = ohm * amp2_h / 1e3  # kWh per unit rise
+    low, high = step.interval
+    spread = math.exp(1.645 * FORM_SPREAD)
+    return {"parameters": {strength_param: step.rise / k_r},
+            "interval": {strength_param: [low / RESISTANCE_GROWTH[1],
+                                          high / RESISTANCE_GROWTH[0]]},
+            "energy_kwh": step.rise * per_rise,
+            "energy_interval_kwh": [low * per_rise / spread, high * per_rise * spread],
+            "coefficient": step.rise}
 
 
 @dataclass
@@ -496,14 +545,26 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                                            missing[use], weights[use], nuisance,
                                            bins.block[use], BIN_S)
     elif status == "outside library" and tests:
-        top = max((t for k, t in credible.items() if by_label[k].kind == "outside"
-                   and sizes[k] >= MIN_OUTSIDE_KW), key=lambda t: t.chi2)
+        top = max((t for k, t in credible.items() if reportable(k, by_label, sizes)),
+                  key=lambda t: t.chi2)
         finding.since_day, finding.since_interval = since(credible, by_label,
                                                           by_label[top.name].name)
     finding.modes = mode_table(missing, weights, bins, use)
     say("the pack's resistance from the logged voltage")
-    check = voltage_evidence(model, profiles, fit.params, effects)
-    if check is not None and check.best is not None and finding.status in (
+    check = voltage_evidence(model, profiles, fit.params, effects, day_of)
+    if check is not None and check.step is not None and finding.status != "named" \
+            and bus.slots.get("aging", SLOTS["aging"].default) == AGEING:
+        # the pack's own measure, beside which the power's shapes are second-hand: a weak
+        # cell group moves the power only where the charger's CV phase and regen near full
+        # bind, which a missing-power test takes for a regen limit or a load there
+        step = check.step
+        finding.status, finding.verdict = "voltage", AGEING
+        finding.since_day, finding.since_interval = step.since_day, step.since_days
+        finding.why = (f"the logged voltage shows {step.rose()} from this day on: a weak cell "
+                       "group limiting its string, or a worn connection, as ageing does to "
+                       "the pack (its capacity fading with it)")
+        finding.strength = step_strength(step, check, model, profiles, day_of)
+    elif check is not None and check.best is not None and finding.status in (
             "noise", "outside library", "implausible"):
         finding.status, finding.verdict = "voltage", check.best.effect
         finding.why = (f"the logged voltage shows the pack's resistance changing over the log, "

@@ -98,8 +98,14 @@ def ranking_of(power, days: list[str]) -> list[dict]:
                "fitted_energy_kwh": energy_kwh(t, form)}
         rows.append(row)
     if f.verdict is not None and f.strength:
-        named = next(r for r in rows if r["effect"] == f.verdict
-                     and r["since_day"] == f.since_day)
+        named = next((r for r in rows if r["effect"] == f.verdict
+                      and r["since_day"] == f.since_day), None)
+        if named is None:  # named from the logged voltage, not a tested power form
+            named = {"effect": f.verdict, "kind": "missing effect", "label": f.verdict,
+                     "explained_fraction": math.nan, "explained_band": [math.nan, math.nan],
+                     "chi2": math.nan, "needed": f.needed, "since": days[f.since_day],
+                     "since_day": f.since_day, "fitted_energy_kwh": f.strength["energy_kwh"]}
+            rows.append(named)
         named |= {"parameters": f.strength.get("parameters", {}),
                   "interval": {k: tuple(v) for k, v in f.strength.get("interval", {}).items()},
                   "energy_kwh": f.strength["energy_kwh"],
@@ -142,7 +148,7 @@ def since_of(power, days: list[str]) -> tuple[str | None, list[str] | None]:
     and the days it may have started on (None, None where it acts on every day, or nothing
     was found)."""
     f = power.finding
-    if f.status not in ("named", "outside library") or f.since_day == 0:
+    if f.status not in ("named", "outside library", "voltage") or f.since_day == 0:
         return None, None
     low, high = f.since_interval
     return days[f.since_day], [days[low], days[high]]
