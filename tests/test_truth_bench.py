@@ -76,6 +76,23 @@ def test_the_ci_subset_gets_no_wrong_verdict(job, tmp_path_factory):
         assert row["start_day"] is not None or row["condition_kind"] != "from_day"
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(bool(_available("backward")), reason="the backward model cannot run here")
+def test_the_power_domain_dates_a_weak_cell_group_from_the_logged_voltage(tmp_path):
+    """The backward model's first weak-cell-group bus, its six days cut to their last hour,
+    read second by second: its pack's resistance rises from the day the group fails, and the
+    diagnosis names the library's ageing from that day, with an RCD interval that holds the
+    truth's capacity loss (k_R from 1 to 2)."""
+    bus = next(b for b in bench.truth_buses("backward", 1, 0) if b.condition == "capacity_step")
+    job = bench.Job("backward", "bms", "bus", bench.CutBus(bus, 1.0), str(tmp_path),
+                    domain="power")
+    row = bench.run_job(job, ladder=False)
+    assert (row["status"], row["verdict"]) == ("voltage", "static_rcd"), row["why"]
+    assert row["since"] == row["start_date"], (row["since"], row["start_date"])
+    low, high = row["interval"]["static_rcd.rcd_frac"]
+    assert low <= row["truth"]["static_rcd.rcd_frac"] <= high
+
+
 def _bms_logs():
     return [p for p in _ci_jobs() if p.values[0] is None or p.values[0].log == "bms"]
 
