@@ -8,6 +8,10 @@ import numpy as np
 from ebus_env.diagnostics.residual import MODES, operating_modes
 
 MODE_COLOURS = ("#f4a582", "#d1e5f0", "#92c5de", "#e0e0e0", "#b2df8a", "#33a02c")
+COLOUR_OF = {**dict(zip(MODES, MODE_COLOURS, strict=True)),
+             # the power domain's modes (diagnostics.power.MODES), as their SoC-window kin
+             "standing": MODE_COLOURS[3], "braking": MODE_COLOURS[2],
+             "charging": MODE_COLOURS[4], "braking at high SoC": "#4393c3"}
 
 
 def _plt():
@@ -142,7 +146,7 @@ def modes(d):
     names = [m["mode"] for m in d.modes]
     kw = [m["missing_kw"] for m in d.modes]
     se = [m["stderr_kw"] for m in d.modes]
-    ax.bar(names, kw, yerr=se, color=[MODE_COLOURS[MODES.index(n)] for n in names],
+    ax.bar(names, kw, yerr=se, color=[COLOUR_OF.get(n, "#bababa") for n in names],
            edgecolor="k", lw=0.5)
     ax.axhline(0, color="k", lw=0.6)
     ax.set_ylabel("missing power [kW]")
