@@ -157,6 +157,12 @@ def test_files_of_unknown_loggers_and_times_outside_an_installation_are_listed(d
     assert [d.first[:10] for d in days.days if d.bus == "bus-101"] == ["2026-01-15"]
 
 
+def test_a_depot_run_refuses_an_unknown_domain_before_reading_a_file(tmp_path):
+    with pytest.raises(ConfigError, match="domain='windows'.*Fix: soc"):
+        run_depot(tmp_path / "nowhere", tmp_path / "loggers.csv", tmp_path / "out",
+                  domain="windows")
+
+
 def test_action_from_the_diagnosis():
     assert action("ambient_battery", "voltage") == "workshop"
     assert action(None, "noise") == "ok"
@@ -186,13 +192,15 @@ def test_the_depot_command_without_diagnosis_writes_the_days_and_the_summary(dep
 
 
 @pytest.mark.slow
-def test_a_depot_run_names_the_bus_with_a_cold_pack_for_the_workshop(tmp_path):
+@pytest.mark.parametrize("domain", ["soc", "power"])
+def test_a_depot_run_names_the_bus_with_a_cold_pack_for_the_workshop(tmp_path, domain):
     """Two buses over two service days each: bus-102's pack is cold (not thermally managed,
     parked outdoors at -4 degC), bus-101 has nothing wrong. The diagnosis of each bus over
-    its days sends bus-102 to the workshop, naming the pack, and bus-101 nowhere."""
+    its days, in SoC windows or from the logged power second by second, sends bus-102 to the
+    workshop, naming the pack, and bus-101 nowhere; each bus's report is written."""
     folder = tmp_path / "incoming"
     loggers = write_depot(folder, days=DEPOT[:4])
-    run = run_depot(folder, loggers, tmp_path / "report")
+    run = run_depot(folder, loggers, tmp_path / "report", domain=domain)
     by_bus = {b.bus: b for b in run.buses}
     assert set(by_bus) == {"bus-101", "bus-102"}
     assert by_bus["bus-102"].action == "workshop"

@@ -48,6 +48,10 @@ def register(app: typer.Typer) -> None:
         = "error",
         calibrate: Annotated[bool, typer.Option(
             help="Calibrate each bus's own parameters on its days before diagnosing")] = True,
+        domain: Annotated[str, typer.Option(
+            help="soc: SoC windows; power: the pack's logged current and voltage second by "
+                 "second, each bus fitted to its power over its days, with the day a change "
+                 "started; auto: power where every day's log has them")] = "soc",
         no_diagnose: Annotated[bool, typer.Option(
             "--no-diagnose", help="Only cut the folder into bus-day logs")] = False,
     ):
@@ -75,7 +79,8 @@ def register(app: typer.Typer) -> None:
                 result = run_depot(folder, map_csv, out, bus_config=bus_config,
                                    signal_map=columns, rule=rule, calibrate=calibrate,
                                    diagnose=not no_diagnose, gaps=gaps, fill=fill,
-                                   command=command, progress=status.update)
+                                   command=command, progress=status.update,
+                                   domain=domain)
             for f in result.days.files:
                 if f.problem:
                     console.print(f"[yellow]{escape(f.path.name)} ({escape(f.logger)}):[/] "

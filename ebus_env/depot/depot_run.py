@@ -98,10 +98,12 @@ class DepotRun:
 
 
 def diagnose_bus(bus_config, days: list[BusDay], *, calibrate: bool, gaps: str, fill: str,
-                 progress=None):
+                 progress=None, domain: str = "soc"):
     """The diagnosis of one bus over its service days (their canonical logs read with every
     check of :func:`~ebus_env.io.measured.load_log`): the library's
-    :func:`~ebus_env.diagnostics.diagnose` on the days' profiles, each keeping its date."""
+    :func:`~ebus_env.diagnostics.diagnose` on the days' profiles, each keeping its date, in
+    ``domain`` (``power``: the bus fitted to its logged power second by second, which takes
+    the place of the SoC calibration)."""
     from ebus_env.diagnostics import diagnose
     from ebus_env.io.measured import load_log
 
@@ -111,21 +113,28 @@ def diagnose_bus(bus_config, days: list[BusDay], *, calibrate: bool, gaps: str, 
         profiles += log.profiles
         notes += [f"{day.path.name}: {line}" for line in
                   day.notes + log.report.changes + log.report.warnings]
-    return diagnose(bus_config, profiles, calibrate=calibrate, loader_notes=notes,
-                    progress=progress)
+    return diagnose(bus_config, profiles, calibrate=calibrate and domain != "power",
+                    loader_notes=notes, progress=progress, domain=domain)
 
 
 def run_depot(folder: str | Path, logger_map: str | Path, out: str | Path, *, bus_config=None,
               signal_map: str | Path | dict = "ebus_j1939", rule: DayRule = DEFAULT_RULE,
               calibrate: bool = True, diagnose: bool = True, gaps: str = "split",
-              fill: str = "error", command: str = "", progress=None) -> DepotRun:
+              fill: str = "error", command: str = "", progress=None,
+              domain: str = "soc") -> DepotRun:
     """Cut the depot's folder into service days per bus, diagnose each bus over them and write
     the fleet summary into ``out`` (see the module docstring). ``bus_config``: the
-    :class:`~ebus_env.config.BusConfig` of every bus (default ``load_bus('12m')``)."""
+    :class:`~ebus_env.config.BusConfig` of every bus (default ``load_bus('12m')``);
+    ``domain``: how each bus is diagnosed (:data:`~ebus_env.diagnostics.power_stage.DOMAINS`)."""
     import time
 
     from ebus_env.config import load_bus
+    from ebus_env.diagnostics.power_stage import DOMAINS
 
+    if domain not in DOMAINS:
+        raise ConfigError(f"run_depot: domain={domain!r} is not one of {', '.join(DOMAINS)}. "
+                          "Fix: soc (SoC windows), power (the logged power second by second) "
+                          "or auto.")
     folder, out = Path(folder), Path(out)
     say = progress or (lambda text: None)
     if not folder.is_dir():
@@ -159,7 +168,7 @@ def run_depot(folder: str | Path, logger_map: str | Path, out: str | Path, *, bu
         t0 = time.perf_counter()
         try:
             diagnosis = diagnose_bus(bus_config, result.diagnosed, calibrate=calibrate,
-                                     gaps=gaps, fill=fill,
+                                     gaps=gaps, fill=fill, domain=domain,
                                      progress=lambda text, b=bus: say(f"{b}: {text}"))
         except EbusError as exc:
             result.why = f"error: {exc}"
