@@ -324,6 +324,23 @@ def test_several_days_of_a_bus_name_the_effect_and_the_day_it_started(tmp_path):
     assert q.status in ("noise", "outside library") and q.since is None, q.sentence
 
 
+def rising_pack(tmp_path, rise: float, hours: float = 0.5):
+    """Four days of one bus (the project's model), its cells' resistance ``1 + rise`` times
+    the configured from the third day on: (the case, the profiles, each one's day)."""
+    name = "rint_battery.cell_resistance_mohm"
+    case = bms_day(None, hours=0.1)[0]
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    own = model.params[model.param_index(name)]
+    profiles, day_of = [], []
+    for k, seed in enumerate((5, 6, 7, 8)):
+        factor = 1.0 + rise if k >= 2 else 1.0
+        _, frame = bms_day(None, hours=hours, seed=seed, params={name: factor * own})
+        for p in load(on_day(frame, k), tmp_path, f"r{rise}-day{k}"):
+            profiles.append(p)
+            day_of.append(k)
+    return case, profiles, day_of
+
+
 @pytest.mark.slow
 def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_then(tmp_path):
     """Four half-hour days of one bus whose cells' resistance is 25 % higher from the third
@@ -332,18 +349,10 @@ def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_the
     same days without the rise show none."""
     from ebus_env.diagnostics.power_path import voltage_evidence
 
-    name = "rint_battery.cell_resistance_mohm"
-    case = bms_day(None, hours=0.1)[0]
-    model = hidden.baseline_bus(case).build(hidden.DT_S)
-    own = model.params[model.param_index(name)]
     for rise in (0.25, 0.0):
-        profiles, day_of = [], []
-        for k, seed in enumerate((5, 6, 7, 8)):
-            factor = 1.0 + rise if k >= 2 else 1.0
-            _, frame = bms_day(None, hours=0.5, seed=seed, params={name: factor * own})
-            for p in load(on_day(frame, k), tmp_path, f"r{rise}-day{k}"):
-                profiles.append(p)
-                day_of.append(k)
+        case, profiles, day_of = rising_pack(tmp_path, rise)
+        model = hidden.baseline_bus(case).build(hidden.DT_S)
+        own = model.params[model.param_index("rint_battery.cell_resistance_mohm")]
         check = voltage_evidence(model, profiles, model.params, [], day_of)
         if rise == 0.0:
             assert check.step is None
@@ -363,6 +372,24 @@ def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_the
                                                          rel=0.25)
         low, high = f.strength["interval"]["static_rcd.rcd_frac"]
         assert low < rise / 1.5 < high
+
+
+@pytest.mark.slow
+def test_in_soc_windows_too_a_resistance_rise_names_ageing_from_its_day(tmp_path):
+    """The same four days diagnosed in SoC windows (the default domain): the missing power
+    names nothing, the logged voltage names the library's ageing from the third day's date,
+    in the sentence, the JSON and the HTML report."""
+    from ebus_env.diagnostics import diagnose
+
+    case, profiles, _ = rising_pack(tmp_path, 0.25)
+    d = diagnose(hidden.baseline_bus(case), profiles)
+    assert d.domain == "soc" and (d.status, d.verdict) == ("voltage", "static_rcd"), d.sentence
+    assert d.since == "2026-01-16" and d.sentence.startswith("From 2026-01-16 on, "), d.sentence
+    assert d.to_json()["resistance"]["step"]["since_day"] == 2
+    low, high = d.named["interval"]["static_rcd.rcd_frac"]
+    assert low < 0.25 / 1.5 < high
+    d.write_html(tmp_path / "report.html")
+    assert "static_rcd" in (tmp_path / "report.html").read_text()
 
 
 def test_a_folder_of_logs_reads_as_its_days_in_order(tmp_path):

@@ -196,13 +196,19 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
     if ctx.power is not None and ctx.power.resistance is not None:
         check = ctx.power.resistance  # with the effects the power path tried
     since, since_interval = since_of(ctx.power, ctx.days) if ctx.power else (None, None)
+    step = check.step if check is not None else None
+    if ctx.power is None and found.status == "voltage" and step is not None:
+        since = ctx.days[step.since_day]  # the library's ageing from the day it rose
+        since_interval = [ctx.days[d] for d in step.since_days]
     if ctx.power is not None:  # the power path's bus: the model the strength is a value of
         effect = as_effect(verdict) if verdict else None
         model = ctx.power.model if effect is None else ctx.bus.with_effect(
             effect).build(ctx.dt_s)
-    else:
-        effect = ctx.by_name[verdict].effect if verdict else None
-        model = ctx.by_name[verdict].model if verdict else ctx.model
+    elif verdict in ctx.by_name:
+        effect, model = ctx.by_name[verdict].effect, ctx.by_name[verdict].model
+    else:  # none, or named from the voltage without a candidate of the missing power
+        effect = as_effect(verdict) if verdict else None
+        model = ctx.model if effect is None else ctx.bus.with_effect(effect).build(ctx.dt_s)
     sentence = _sentence(found, effect, model, since, ctx.power is not None)
     return Diagnosis(
         bus=ctx.bus.name, logs=[p.name for p in ctx.profiles], basis=res.basis,

@@ -50,9 +50,7 @@ from ebus_env.diagnostics.power_fit import (
     pack_values,
     resistance_check_at,
 )
-from ebus_env.diagnostics.voltage import daily_ratios, explain_change, resistance_step
-from ebus_env.effects import registered_effects
-from ebus_env.signals import SLOTS
+from ebus_env.diagnostics.voltage import AGEING, ages, day_step, explain_change, step_strength
 
 ALPHA = 0.01
 """The chance, on a day with nothing missing, that some candidate passes, over all the
@@ -424,48 +422,9 @@ def voltage_evidence(model, profiles, params, candidates, day_of: list[int]):
     if check is not None and check.changes:
         check.explained_by = explain_change(check, profiles, anchored, windows,
                                             np.ones(len(windows), bool), candidates)
-    if check is not None and check.ratio is not None and max(day_of) > 0:
-        ambient = np.array([np.mean([np.mean(p.channel("ambient_degc"))
-                                     for p, d in zip(profiles, day_of, strict=True) if d == day])
-                            for day in range(max(day_of) + 1)])
-        check.step = resistance_step(daily_ratios(check.ratio, windows, day_of), ambient)
+    if check is not None:
+        check.step = day_step(check, windows, profiles, day_of)
     return check
-
-
-AGEING = "static_rcd"
-"""The library's ageing: capacity x (1 - RCD), resistance x (1 + k_R RCD)."""
-
-
-RESISTANCE_GROWTH = (1.0, 2.0)
-"""The resistance's growth per unit of lost capacity, k_R, a pack may have: a resistance
-rise of x is a capacity fade of x / k_R (docs/physics.md §5.5)."""
-
-
-def step_strength(step, check, model, profiles, day_of: list[int]) -> dict:
-    """The ageing a resistance rise says (``step``: :class:`~ebus_env.diagnostics.voltage.
-    ResistanceStep`): the capacity fade RCD = rise / k_R at the library's k_R, its 90 %
-    interval from the rise's and :data:`RESISTANCE_GROWTH` (k_R: the bus's where it has the
-    effect); and the energy the pack loses
-    to the added resistance from its start day, ``rise R I^2`` over the logged current
-    (R: the model's apparent pack resistance at the days before's level), with the rise's
-    interval and :data:`FORM_SPREAD`."""
-    growth = model.equivalent(f"{AGEING}.resistance_growth")
-    k_r = float(model.params[model.param_index(growth)] if growth is not None else next(
-        p.default for p in registered_effects()[AGEING].params if p.name == "resistance_growth"))
-    strength_param = f"{AGEING}.rcd_frac"
-    before = [r for d, r in enumerate(step.days) if d < step.since_day and np.isfinite(r)]
-    ohm = float(np.nanmedian(check.model_ohm)) * float(np.median(before))
-    amp2_h = sum(float(np.nansum(p.measured["battery_current_a"] ** 2)) * p.dt_s / 3600.0
-                 for p, d in zip(profiles, day_of, strict=True) if d >= step.since_day)
-    per_rise = ohm * amp2_h / 1e3  # kWh per unit rise
-    low, high = step.interval
-    spread = math.exp(1.645 * FORM_SPREAD)
-    return {"parameters": {strength_param: step.rise / k_r},
-            "interval": {strength_param: [low / RESISTANCE_GROWTH[1],
-                                          high / RESISTANCE_GROWTH[0]]},
-            "energy_kwh": step.rise * per_rise,
-            "energy_interval_kwh": [low * per_rise / spread, high * per_rise * spread],
-            "coefficient": step.rise}
 
 
 @dataclass
@@ -553,17 +512,15 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     say("the pack's resistance from the logged voltage")
     check = voltage_evidence(model, profiles, fit.params, effects, day_of)
     if check is not None and check.step is not None and finding.status != "named" \
-            and bus.slots.get("aging", SLOTS["aging"].default) == AGEING:
+            and ages(bus):
         # the pack's own measure, beside which the power's shapes are second-hand: a weak
         # cell group moves the power only where the charger's CV phase and regen near full
         # bind, which a missing-power test takes for a regen limit or a load there
         step = check.step
         finding.status, finding.verdict = "voltage", AGEING
         finding.since_day, finding.since_interval = step.since_day, step.since_days
-        finding.why = (f"the logged voltage shows {step.rose()} from this day on: a weak cell "
-                       "group limiting its string, or a worn connection, as ageing does to "
-                       "the pack (its capacity fading with it)")
-        finding.strength = step_strength(step, check, model, profiles, day_of)
+        finding.why = step.why("this day")
+        finding.strength = step_strength(step, check, model, profiles, day_of, FORM_SPREAD)
     elif check is not None and check.best is not None and finding.status in (
             "noise", "outside library", "implausible"):
         finding.status, finding.verdict = "voltage", check.best.effect

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ebus_env.diagnostics.candidates import Strength
+from ebus_env.diagnostics.log_days import service_days
 from ebus_env.diagnostics.power import logs_power
 from ebus_env.diagnostics.power_path import OUTSIDE_MODE, diagnose_power, energy_kwh, label
 from ebus_env.diagnostics.stage06_attribution import Attributed
@@ -45,18 +46,6 @@ def domain_of(ctx: DiagnosisRun) -> str:
     if ctx.domain == "power":
         return "power"
     return "power" if ctx.domain == "auto" and bms and ctx.reference is None else "soc"
-
-
-def service_days(profiles) -> tuple[list[int], list[str]]:
-    """Each profile's day (0 first) and each day's name: the local date where every log has
-    date-times, else the log's name in the order given."""
-    if all(p.date is not None for p in profiles):
-        keys = [p.date.isoformat() for p in profiles]
-        names = sorted(set(keys))
-    else:
-        keys = [p.name for p in profiles]
-        names = list(dict.fromkeys(keys))
-    return [names.index(k) for k in keys], names
 
 
 def run(ctx: DiagnosisRun) -> None:

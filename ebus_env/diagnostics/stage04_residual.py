@@ -17,8 +17,9 @@ import numpy as np
 
 from ebus_env.calibration.problem import logs_current
 from ebus_env.diagnostics import quality, residual
+from ebus_env.diagnostics.log_days import service_days
 from ebus_env.diagnostics.normal_day import Reference, mode_shares
-from ebus_env.diagnostics.voltage import resistance_check
+from ebus_env.diagnostics.voltage import day_step, resistance_check
 from ebus_env.errors import LogError
 
 if TYPE_CHECKING:
@@ -125,8 +126,14 @@ def residual_stage(model, profiles, values: dict, window_s: float | None,
 
 def run(ctx: DiagnosisRun) -> None:
     """Fill ``ctx.res`` (the missing power of the model at rung 0's values, or the values it
-    holds uncalibrated) and ``ctx.check`` (the resistance the logged voltage shows, or None)."""
+    holds uncalibrated) and ``ctx.check`` (the resistance the logged voltage shows, or None;
+    on several days, with its rise from a day on, and ``ctx.days``)."""
     values = ctx.first_rung.values if ctx.first_rung else dict(ctx.known)
     ctx.res = res = residual_stage(ctx.model, ctx.profiles, values, ctx.window_s,
                                    ctx.loader_notes, ctx.normal)
     ctx.check = resistance_check(ctx.profiles, res.anchored, res.windows, res.usable)
+    if ctx.check is not None and ctx.domain == "soc":
+        day_of, days = service_days(ctx.profiles)
+        if len(days) > 1:
+            ctx.days = days
+            ctx.check.step = day_step(ctx.check, res.windows, ctx.profiles, day_of)

@@ -61,7 +61,7 @@ def run(ctx: DiagnosisRun) -> None:
                               freedom=ctx.freedom)
         after_model, after_values = ladder[-1].model, ladder[-1].values
         nrmse["after_is"] = f"the last rung of the error ladder ({ladder[-1].label})"
-    elif verdict is not None and ctx.domain == "soc":
+    elif verdict in ctx.by_name and ctx.domain == "soc":  # not one named from the voltage alone
         best = ctx.by_name[verdict]
         after_model, after_values = best.model, {**values, **found.estimate}
         nrmse["after_is"] = f"+ {verdict} at its estimated strength (fitted on calibration blocks)"

@@ -16,11 +16,14 @@ J. Power Sources 242 (2013) 548-559); a steady ratio far from one says the calib
 resistance is off (a SoC log pins it only weakly). The diagnosis's missing power does not use
 the voltage (see :mod:`ebus_env.diagnostics.residual`); the missing effect that reproduces the
 change (:func:`explain_change`) is reported beside its verdict, and becomes the verdict where
-the missing power names none.
+the missing power names none. On several days of one bus, each day's ratio shows whether the
+resistance rose from a day on and stayed (:func:`resistance_step`: a weak cell group), which
+names the library's ageing from that day.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +37,8 @@ from ebus_env.diagnostics.residual import (
     channel,
     correlation_time,
 )
+from ebus_env.effects import registered_effects
+from ebus_env.signals import SLOTS
 
 MIN_ROWS = 30  # recorded rows a window needs for a resistance
 MIN_SPREAD_A = 10.0  # standard deviation of the current that makes R observable
@@ -340,6 +345,12 @@ class ResistanceStep:
                 f"{self.needed:.1f} needed"
                 + (", the days' weather fitted beside it" if self.weather else "") + ")")
 
+    def why(self, since: str) -> str:
+        """What the rise says, from ``since`` (a date, "this day") on."""
+        return (f"the logged voltage shows {self.rose()} from {since} on: a weak cell group "
+                "limiting its string, or a worn connection, as ageing does to the pack (its "
+                "capacity fading with it)")
+
     def to_json(self) -> dict:
         return {"since_day": self.since_day, "since_days": list(self.since_days),
                 "rise": self.rise, "interval": list(self.interval), "t": self.t,
@@ -425,3 +436,56 @@ def _step_fit(y: np.ndarray, step: np.ndarray, temp: np.ndarray | None):
         b = float(coef[2]) if a.shape[1] == 3 else 0.0
         return float(coef[1]), float(np.sqrt(max(cov[1, 1], 1e-300))), dof, b
     return None
+
+
+AGEING = "static_rcd"
+"""The library's ageing: capacity x (1 - RCD), resistance x (1 + k_R RCD)."""
+
+
+def ages(bus) -> bool:
+    """Whether the bus's ageing slot holds the library's ageing (a rise names it)."""
+    return bus.slots.get("aging", SLOTS["aging"].default) == AGEING
+
+
+def day_step(check: ResistanceCheck, windows: Windows, profiles,
+             day_of: list[int]) -> ResistanceStep | None:
+    """The rise of the resistance from a day on over several days (``day_of``: each
+    profile's day), each day's weather its logged mean ambient."""
+    if check.ratio is None or max(day_of) == 0:
+        return None
+    ambient = np.array([np.mean([np.mean(p.channel("ambient_degc"))
+                                 for p, d in zip(profiles, day_of, strict=True) if d == day])
+                        for day in range(max(day_of) + 1)])
+    return resistance_step(daily_ratios(check.ratio, windows, day_of), ambient)
+
+
+RESISTANCE_GROWTH = (1.0, 2.0)
+"""The resistance's growth per unit of lost capacity, k_R, a pack may have: a resistance
+rise of x is a capacity fade of x / k_R (docs/physics.md §5.5)."""
+
+
+def step_strength(step: ResistanceStep, check: ResistanceCheck, model, profiles,
+                  day_of: list[int], form_spread: float) -> dict:
+    """The ageing a resistance rise says: the capacity fade RCD = rise / k_R (k_R: the
+    model's, else the library's default), its 90 % interval from the rise's and
+    :data:`RESISTANCE_GROWTH`; and the energy the pack loses to the added resistance from the
+    rise's day on, ``rise R I^2`` over the logged current (R: the model's apparent pack
+    resistance at the level of the days before), its interval from the rise's widened by a
+    library form's spread against the bus's own (``form_spread``, one sd of ln)."""
+    growth = model.equivalent(f"{AGEING}.resistance_growth")
+    k_r = float(model.params[model.param_index(growth)] if growth is not None else next(
+        p.default for p in registered_effects()[AGEING].params if p.name == "resistance_growth"))
+    strength_param = f"{AGEING}.rcd_frac"
+    before = [r for d, r in enumerate(step.days) if d < step.since_day and np.isfinite(r)]
+    ohm = float(np.nanmedian(check.model_ohm)) * float(np.median(before))
+    amp2_h = sum(float(np.nansum(p.measured["battery_current_a"] ** 2)) * p.dt_s / 3600.0
+                 for p, d in zip(profiles, day_of, strict=True) if d >= step.since_day)
+    per_rise = ohm * amp2_h / 1e3  # kWh per unit rise
+    low, high = step.interval
+    spread = math.exp(1.645 * form_spread)
+    return {"parameters": {strength_param: step.rise / k_r},
+            "interval": {strength_param: [low / RESISTANCE_GROWTH[1],
+                                          high / RESISTANCE_GROWTH[0]]},
+            "energy_kwh": step.rise * per_rise,
+            "energy_interval_kwh": [low * per_rise / spread, high * per_rise * spread],
+            "coefficient": step.rise}
