@@ -65,4 +65,5 @@ def named_from_rise(ctx: DiagnosisRun) -> None:
                     "explained_band": [nan, nan], "parameters": {}, "interval": {}},
                    *ranking]
     ctx.found = replace(found, verdict=AGEING, why=why, strength=strength, verdict_w=None,
-                        ranking=ranked_with(ranking, AGEING, strength), status="voltage")
+                        ranking=ranked_with(ranking, AGEING, strength), status="voltage",
+                        clue=None)  # the pack, not an operating mode
