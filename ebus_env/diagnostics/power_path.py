@@ -517,7 +517,7 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
         # cell group moves the power only where the charger's CV phase and regen near full
         # bind, which a missing-power test takes for a regen limit or a load there
         step = check.step
-        finding.status, finding.verdict = "voltage", AGEING
+        finding.status, finding.verdict, finding.clue = "voltage", AGEING, None
         finding.since_day, finding.since_interval = step.since_day, step.since_days
         finding.why = step.why("this day")
         finding.strength = step_strength(step, check, model, profiles, day_of, FORM_SPREAD)
