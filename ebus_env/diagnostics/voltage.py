@@ -388,9 +388,9 @@ def resistance_step(ratio_by_day: np.ndarray, ambient_by_day: np.ndarray | None 
     y_all = np.log(np.asarray(ratio_by_day, float))
     seen = np.isfinite(y_all)
     days = np.flatnonzero(seen)
-    starts = [n for n in range(1, len(y_all)) if days.min() < n <= days.max()]
-    if len(days) < 4 or not starts:
+    if len(days) < 4:
         return None
+    starts = [n for n in range(1, len(y_all)) if days.min() < n <= days.max()]
     y = y_all[seen]
     temp = None if ambient_by_day is None else np.asarray(ambient_by_day, float)[seen]
     weather = temp is not None and bool(np.all(np.isfinite(temp))) \
