@@ -175,5 +175,5 @@ def test_days_that_only_scatter_or_follow_the_weather_show_no_rise():
     assert resistance_step(spell, np.array(cold)) is None
     assert resistance_step(spell).since_day == 3  # without the weather, a rise
     assert resistance_step(day_ratios(0.03, 3, 0.001)) is None
-    assert resistance_step(day_ratios(0.30, 3, 0.01)[:3]) is None  # three days: no test
+    assert resistance_step(day_ratios(0.30, 1, 0.01, days=3)) is None  # three days: no test
     assert resistance_step(np.full(6, np.nan)) is None  # no day showed it
