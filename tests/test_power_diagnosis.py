@@ -16,9 +16,12 @@ from ebus_env.diagnostics.power import (
     MODES,
     TRACE,
     Bins,
+    _logged_seconds,
+    _steps,
     anchored_runs,
     log_power,
     log_voltage,
+    logger_lag,
     logs_power,
     make_bins,
 )
@@ -253,6 +256,47 @@ def test_a_threshold_the_log_never_reaches_where_it_starts_is_still_fitted(tmp_p
     assert fitted[cutoff][decel] > 4.0
 
 
+def test_each_logged_second_is_compared_with_the_model_as_the_logger_took_it(tmp_path):
+    """A BMS logs each second's mean current. The model's steps averaged over the same
+    second follow the logged power of the bus that made the log to within its sensor's
+    noise; the instant at each second's start leaves about a kW while accelerating, as a load
+    would (the power moves within the second). A logger whose current lags its time stamp by half a
+    second, or leads it by one, is found to the model's step, and so is one that keeps time."""
+    case, frame = bms_day(None, hours=2.0, plain=True)
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    profiles = load(frame, tmp_path, "plain")
+    every = int(round(1.0 / hidden.DT_S))
+    steps = _steps(model, profiles[0], model.params[None, :],
+                   np.array([model.trace_names.index("battery_power_w")]))[0]
+    run = steps[every:-every]
+    bins, logged_w, voltage = bus_bins(model, profiles)
+    accelerating = bins.fit & (bins.mode_share[:, MODES.index("accelerating")] > 0.5)
+    left = {}
+    for name, seconds in (("mean", _logged_seconds(steps, every, 0)[:, 0]),
+                          ("instant", run[::every, 0])):
+        model_w = bins.means([seconds])
+        sensor = sensor_columns(bins, model_w, voltage)
+        _, _, coef, _, _ = fit_all(logged_w - model_w, np.ones(len(bins)), sensor)
+        left[name] = np.mean((logged_w - model_w - sensor.x @ coef)[accelerating])
+    assert abs(left["mean"]) < 200.0  # W
+    assert left["instant"] > 700.0
+    assert logger_lag(model, profiles, model.params) == 0
+    for shift_s, lag in ((0.5, -5), (-1.0, 10)):
+        late = frame.copy()
+        rows = np.arange(len(late))
+        late["battery_current_a"] = np.interp(rows - shift_s, rows, late["battery_current_a"])
+        found = logger_lag(model, load(late, tmp_path, f"late{shift_s}"), model.params)
+        assert abs(found - lag) <= 1
+
+
+def test_a_second_of_the_log_averages_the_model_steps_it_stands_for():
+    """Ten steps of 0.1 s per logged second; a lag moves the window, cut at the run's ends."""
+    steps = np.concatenate([np.zeros(10), np.arange(30.0), np.zeros(10)])[:, None]
+    assert _logged_seconds(steps, 10, 0)[:, 0] == pytest.approx([4.5, 14.5, 24.5])
+    assert _logged_seconds(steps, 10, -5)[:, 0] == pytest.approx([2.0, 9.5, 19.5])
+    assert _logged_seconds(steps, 10, 5)[:, 0] == pytest.approx([9.5, 19.5, 27.0])
+
+
 def test_the_pack_resistance_comes_from_the_logged_voltage(tmp_path):
     """A pack of twice the model's cell resistance: the logged voltage's drop under load
     gives the model that resistance (within 10 %) before the bus is fitted; a pack as the
@@ -274,6 +318,7 @@ def test_a_cabin_heater_hidden_from_the_bus_is_named_and_a_control_day_names_not
     about the energy it drew; the same bus on a day with nothing hidden is left alone."""
     case, frame = bms_day("cabin_hvac", hours=3.0)
     run = diagnose_power(hidden.baseline_bus(case), load(frame, tmp_path, "cabin"), [0])
+    assert run.bins.lag == 0  # the project's logs stamp the second that follows
     assert run.finding.status == "named" and run.finding.verdict == "cabin_hvac"
     low, high = run.finding.strength["energy_interval_kwh"]
     assert low < run.finding.strength["energy_kwh"] < high

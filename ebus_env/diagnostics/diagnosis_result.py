@@ -66,6 +66,7 @@ class Diagnosis:
     days: list[str] = field(default_factory=list)  # each day's date (or log), power domain
     since: str | None = None  # the day the verdict (or a load outside the library) acts from
     since_interval: list[str] | None = None  # the days it may have started on (90 %)
+    logger_lag_s: float | None = None  # power domain: where a logged second starts [s]
 
     @property
     def range_ends(self) -> dict[str, str]:
@@ -119,7 +120,7 @@ class Diagnosis:
                 "significance", "status", "mode_clue", "ranking", "parameters", "selected",
                 "set_aside", "modes", "bins", "worst_windows", "clues", "data_issues",
                 "excluded_windows", "nrmse", "calibration", "reference", "resistance",
-                "timings", "domain", "days", "since", "since_interval")
+                "timings", "domain", "days", "since", "since_interval", "logger_lag_s")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         out["unmet_demand_s"] = self.unmet_demand_s
@@ -229,4 +230,5 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
         after_runs=fits.after_runs, anchored=res.anchored,
         after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if ctx.add else
         f"model + {verdict}", domain=ctx.domain, days=ctx.days, since=since,
-        since_interval=since_interval)
+        since_interval=since_interval,
+        logger_lag_s=ctx.power.bins.lag * ctx.dt_s if ctx.power else None)

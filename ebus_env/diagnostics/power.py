@@ -9,9 +9,12 @@ difference is the power the model misses::
 
     P_missing(t) = P_log(t) - P_model(t)      (> 0: the bus drew more than the model says)
 
-The current sensor's gain and offset scale the measured power and add a constant to it: the
-bus-to-bus parameters (drivetrain efficiency, auxiliary base load) take them up, so they
-need no parameters of their own.
+The current sensor's gain and offset scale the measured power and add a constant to it; they
+are fitted beside the bus's parameters (:data:`~ebus_env.diagnostics.power_fit.SENSOR`).
+
+Each logged second is compared with the model's mean over the steps it stands for, found
+for the bus's logger (:func:`logger_lag`): loggers stamp the second before, the second after,
+or in between.
 
 Seconds are noisy where the model's driver is a second early or late, so the diagnosis
 compares :data:`BIN_S` bins. Bins on a charger are left out of the fit of the bus, where the
@@ -51,34 +54,106 @@ def logs_power(profile) -> bool:
                for name in ("battery_current_a", "battery_voltage_v"))
 
 
-def anchored_runs(model, profiles, rows: np.ndarray, signals=("battery_power_w",)
-                  ) -> list[np.ndarray]:
-    """For each profile, ``(N, n_seconds, len(signals))``: N parameter rows driven along it, the
-    SoC set to the logged one every :data:`ANCHOR_S`, recorded every second. One batched call
-    of the compiled core per anchor."""
-    rows = np.atleast_2d(rows)
+def _steps(model, profile, rows: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """``(N, n_steps + 2 every, len(sel))``: the model's every step along ``profile`` for each
+    of ``rows``, with a second of zeros before and after (``every`` steps a second), the SoC
+    set to the logged one every :data:`ANCHOR_S`. One batched call of the compiled core per
+    anchor."""
     n = len(rows)
-    sel = np.array([model.trace_names.index(s) for s in signals])
+    every = max(1, int(round(1.0 / profile.dt_s)))
     soc_i = model.state_names.index("soc_frac")
+    inputs = model.input_array(profile)
+    first = dict(zip(model.input_names, inputs[:, 0], strict=True))
+    measured = model.measured_states(profile)
+    states = np.array([model.initial_state(r, first, measured_soc_at(profile, 0), **measured)
+                       for r in rows])
+    out = np.zeros((n, profile.n_steps + 2 * every, len(sel)), np.float32)
+    per = max(every, int(round(ANCHOR_S / profile.dt_s / every)) * every)
+    for a in range(0, profile.n_steps, per):
+        b = min(a + per, profile.n_steps)
+        states[:, soc_i] = measured_soc_at(profile, a)
+        buf = np.zeros((n, b - a, len(sel)), np.float32)
+        model.run(rows, states, inputs, step0=np.full(n, a), n_steps=b - a,
+                  record_every=1, record_sel=sel, record_out=buf)
+        out[:, every + a:every + b] = buf
+    return out
+
+
+def _logged_seconds(steps: np.ndarray, every: int, lag: int) -> np.ndarray:
+    """Each logged second's mean of the model's steps (``steps``: :func:`_steps`'s, padded by
+    ``every`` zero steps each side; ``|lag| <= every``): the second at row ``r`` stands for
+    steps ``r every + lag`` to ``(r + 1) every + lag``, those within the run."""
+    n_steps = steps.shape[-2] - 2 * every
+    n_seconds = -(-n_steps // every)
+    start = every + lag
+    window = steps[..., start:start + n_seconds * every, :]
+    if window.shape[-2] < n_seconds * every:  # the last second runs past the padding
+        window = np.concatenate([window, np.zeros_like(
+            steps[..., :n_seconds * every - window.shape[-2], :])], axis=-2)
+    sums = window.reshape(*steps.shape[:-2], n_seconds, every, steps.shape[-1]).sum(
+        axis=-2, dtype=float)
+    index = np.arange(n_seconds * every) + lag
+    inside = ((index >= 0) & (index < n_steps)).reshape(n_seconds, every).sum(axis=1)
+    return sums / np.maximum(inside, 1)[:, None]
+
+
+def anchored_runs(model, profiles, rows: np.ndarray, signals=("battery_power_w",),
+                  lag: int = 0) -> list[np.ndarray]:
+    """For each profile, ``(N, n_seconds, len(signals))``: N parameter rows driven along it, the
+    SoC set to the logged one every :data:`ANCHOR_S`, each logged second the mean of the
+    model's steps in it (``lag``: the logger's timing in model steps, :func:`logger_lag`;
+    0: the second from its time stamp on).
+
+    Means, not the instant at each second's start: a BMS logs its sensors' mean over each
+    period (what its coulomb count integrates), and the power moves within a second as the
+    driver's force follows the speed (about 2 kW on average over a city day of the 12 m bus
+    at 0.1 s steps, as much as a small load; an instant would show it as one while
+    accelerating and braking)."""
+    rows = np.atleast_2d(rows)
+    sel = np.array([model.trace_names.index(s) for s in signals])
     out = []
     for p in profiles:
         every = max(1, int(round(1.0 / p.dt_s)))
-        inputs = model.input_array(p)
-        first = dict(zip(model.input_names, inputs[:, 0], strict=True))
-        measured = model.measured_states(p)
-        states = np.array([model.initial_state(r, first, measured_soc_at(p, 0), **measured)
-                           for r in rows])
-        trace = np.zeros((n, -(-p.n_steps // every), len(sel)), np.float32)
-        per = max(every, int(round(ANCHOR_S / p.dt_s / every)) * every)
-        for a in range(0, p.n_steps, per):
-            b = min(a + per, p.n_steps)
-            states[:, soc_i] = measured_soc_at(p, a)
-            buf = np.zeros((n, -(-(b - a) // every), len(sel)), np.float32)
-            model.run(rows, states, inputs, step0=np.full(n, a), n_steps=b - a,
-                      record_every=every, record_sel=sel, record_out=buf)
-            trace[:, a // every:a // every + buf.shape[1]] = buf
-        out.append(trace.astype(float))
+        out.append(_logged_seconds(_steps(model, p, rows, sel), every, lag))
     return out
+
+
+LAG_S = 1.0
+"""How far the period a logged current stands for may lie from its time stamp, either way
+[s]. Loggers differ: one stamps the mean over the second that follows, another over the
+second before (a backward-facing simulation's step, a BMS that sends when its count closes),
+another an instant; CAN signals from different controllers reach the logger up to a few
+hundred milliseconds apart. A period one second off shifts the power of every acceleration,
+a few kW for a second: a spurious load while accelerating and braking."""
+
+
+def logger_lag(model, profiles, params: np.ndarray) -> int:
+    """The bus's logger's timing [model steps]: the shift within +-:data:`LAG_S` of the
+    model's 1 s means that follows the logged power best, the model at ``params`` (least
+    squares after each day's gain and offset, summed over the days). Only seconds in traction
+    count, moving off a charger with both powers above zero: that is where the timing shows
+    (every acceleration), and where the effects a log is diagnosed for do not move it (a
+    regen limit, which would pull a timing fitted on braking its way; a load, which the
+    offset takes)."""
+    sel = np.array([model.trace_names.index(s) for s in ("battery_power_w", "speed_mps")])
+    reach = int(round(LAG_S / profiles[0].dt_s))
+    loss = np.zeros(2 * reach + 1)
+    for p, logged in zip(profiles, log_power(profiles), strict=True):
+        every = max(1, int(round(1.0 / p.dt_s)))
+        steps = _steps(model, p, params[None, :], sel)[0]
+        plugged = p.channel("charger_connected")[::every] > 0.5
+        for j, lag in enumerate(range(-reach, reach + 1)):
+            seconds = _logged_seconds(steps, every, lag)
+            n = min(len(seconds), len(logged))
+            model_w, logged_w = seconds[:n, 0], logged[:n]
+            ok = ((seconds[:n, 1] > 0.1) & ~plugged[:n] & np.isfinite(logged_w)
+                  & (model_w > 0) & (logged_w > 0))
+            if ok.sum() < 60:  # a day parked: nothing to time
+                continue
+            x = np.column_stack([model_w[ok], np.ones(ok.sum())])
+            _, res, *_ = np.linalg.lstsq(x, logged_w[ok], rcond=None)
+            loss[j] += float(res[0]) if len(res) else 0.0
+    return int(np.argmin(loss)) - reach if loss.any() else 0
 
 
 @dataclass
@@ -93,6 +168,7 @@ class Bins:
     fit: np.ndarray  # used in the fits: past the start-up, off a charger or at its rating
     mode_share: np.ndarray  # (n_bins, len(MODES)) share of its seconds in each mode
     seconds: int  # BIN_S in seconds (rows per bin)
+    lag: int = 0  # the logger's timing in model steps (:func:`logger_lag`)
 
     def __len__(self) -> int:
         return len(self.first)
@@ -132,11 +208,12 @@ RATED_LOADS_W = 30e3
 the rating less this (the bus's loads at most): the pack is not the limit there."""
 
 
-def make_bins(profiles, runs: list[np.ndarray], day_of: list[int]) -> Bins:
+def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0) -> Bins:
     """Bins of every profile from the model's run along it (``runs``: one ``(n_seconds,
-    len(TRACE))`` per profile): their modes, and whether each enters the fits. A bin on a
-    charger enters only where both the model's charger and the logged power show the charger
-    at its rating the whole bin (the loads then show as they do standing)."""
+    len(TRACE))`` per profile, made with the logger's ``lag``): their modes, and whether
+    each enters the fits. A bin on a charger enters only where both the model's charger and
+    the logged power show the charger at its rating the whole bin (the loads then show as
+    they do standing)."""
     k = int(BIN_S)
     cols = {name: [] for name in ("profile", "first", "day", "block", "hour", "fit")}
     shares = []
@@ -171,7 +248,7 @@ def make_bins(profiles, runs: list[np.ndarray], day_of: list[int]) -> Bins:
         cols["hour"].append((p.start_time_h + (first + k / 2) / 3600.0) % 24.0)
         cols["fit"].append(fit)
         shares.append(share)
-    return Bins(*(np.concatenate(cols[c]) for c in cols), np.concatenate(shares), k)
+    return Bins(*(np.concatenate(cols[c]) for c in cols), np.concatenate(shares), k, lag)
 
 
 def log_power(profiles) -> list[np.ndarray]:

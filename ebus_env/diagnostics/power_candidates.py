@@ -48,7 +48,7 @@ def bin_signatures(profiles, bins: Bins, base_runs: list[np.ndarray]):
     base = bins.means([r[:, at] for r in base_runs])
 
     def signatures_of(model, rows):
-        runs = anchored_runs(model, profiles, rows, ("battery_power_w",))
+        runs = anchored_runs(model, profiles, rows, ("battery_power_w",), bins.lag)
         return bins.means([r[:, :, 0] for r in runs]) - base[None, :]
     return signatures_of
 

@@ -197,7 +197,7 @@ class BusFit:
         return out
 
 
-def _signatures(model, profiles, params, names, box):
+def _signatures(model, profiles, params, names, box, lag=0):
     """Runs at ``params`` and with each of ``names`` moved by :data:`STEP` of its range:
     (runs (per profile (n_seconds, len(TRACE))), columns (per profile (p, n_seconds)) [W per
     unit], the change made)."""
@@ -209,10 +209,12 @@ def _signatures(model, profiles, params, names, box):
         step = STEP * (hi - lo)
         change[j] = step if params[i] + step <= hi else -step
         rows[j + 1, i] += change[j]
-    traces = anchored_runs(model, profiles, rows, TRACE)
+    # every signal of the run at params, the power alone of the others (a fifth of the steps
+    # to keep)
+    runs = [t[0] for t in anchored_runs(model, profiles, rows[:1], TRACE, lag)]
+    moved = anchored_runs(model, profiles, rows[1:], ("battery_power_w",), lag)
     at = TRACE.index("battery_power_w")
-    runs = [t[0] for t in traces]
-    columns = [(t[1:, :, at] - t[0, :, at]) / change[:, None] for t in traces]
+    columns = [(m[:, :, 0] - r[:, at]) / change[:, None] for r, m in zip(runs, moved, strict=True)]
     return runs, columns, change
 
 
@@ -242,18 +244,18 @@ def fit_bus(model, profiles, bins: Bins, logged_w: np.ndarray, voltage_v: np.nda
                                np.append(sensor.high, high - params[index])), len(sensor.names)
 
     for it in range(iterations):
-        runs, columns, change = _signatures(model, profiles, params, names, box)
+        runs, columns, change = _signatures(model, profiles, params, names, box, bins.lag)
         power, nuisance, k = nuisance_at(runs, columns)
         if it == WAKE_AT and (dead := _dead(nuisance.x[use, k:], change)):
             params = _wake(model, profiles, bins, logged_w, weights, params, names, box,
                            dead, power, nuisance, k)
-            runs, columns, _ = _signatures(model, profiles, params, names, box)
+            runs, columns, _ = _signatures(model, profiles, params, names, box, bins.lag)
             power, nuisance, k = nuisance_at(runs, columns)
         local = Nuisance(nuisance.names, nuisance.x[use], nuisance.low, nuisance.high)
         _, _, step, _, _ = fit_all(logged_w[use] - power[use], weights[use], local)
         params = params.copy()
         params[index] = np.clip(params[index] + step[k:], low, high)
-    runs, columns, _ = _signatures(model, profiles, params, names, box)
+    runs, columns, _ = _signatures(model, profiles, params, names, box, bins.lag)
     power, nuisance, k = nuisance_at(runs, columns)
     return BusFit(model, names, box, params, runs, nuisance, power, k)
 
@@ -272,7 +274,6 @@ def _wake(model, profiles, bins: Bins, logged_w, weights, params, names, box, de
     the one whose run leaves the least weighted missing power, with the sensor's terms and
     the other parameters' signatures (at the start) free. One batched run for them all."""
     use = bins.fit
-    at = TRACE.index("battery_power_w")
     index = [model.param_index(n) for n in names]
     rows, tried = [], []
     for j in dead:
@@ -282,7 +283,7 @@ def _wake(model, profiles, bins: Bins, logged_w, weights, params, names, box, de
             row[index[j]] = value
             rows.append(row)
             tried.append((j, value))
-    traces = anchored_runs(model, profiles, np.array(rows), TRACE)
+    traces = anchored_runs(model, profiles, np.array(rows), ("battery_power_w",), bins.lag)
     out = params.copy()
     for j in dead:
         keep = [c for c in range(nuisance.x.shape[1]) if c != k + j]
@@ -292,7 +293,7 @@ def _wake(model, profiles, bins: Bins, logged_w, weights, params, names, box, de
         for r, (jj, value) in enumerate(tried):
             if jj != j:
                 continue
-            p = bins.means([t[r, :, at] for t in traces])
+            p = bins.means([t[r, :, 0] for t in traces])
             loss = fit_all(logged_w[use] - p[use], weights[use], local)[4]
             if loss < best[0]:
                 best = (loss, value)

@@ -36,6 +36,7 @@ from ebus_env.diagnostics.power import (
     anchored_runs,
     log_power,
     log_voltage,
+    logger_lag,
     make_bins,
 )
 from ebus_env.diagnostics.power_candidates import (
@@ -454,8 +455,10 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     resistance = pack_resistance(model, profiles, model.param_vector(model.carry_over(start)))
     pack.update({k: v for k, v in resistance.items() if k not in fixed})
     start = {**pack, **fixed}
-    first = anchored_runs(model, profiles, model.param_vector(model.carry_over(start)), TRACE)
-    bins = make_bins(profiles, [r[0] for r in first], day_of)
+    params = model.param_vector(model.carry_over(start))
+    lag = logger_lag(model, profiles, params)
+    first = anchored_runs(model, profiles, params, TRACE, lag)
+    bins = make_bins(profiles, [r[0] for r in first], day_of, lag)
     logged = bins.means(log_power(profiles))
     voltage = bins.means(log_voltage(profiles))
     use = bins.fit
@@ -542,5 +545,5 @@ def summary(run: PowerRun) -> dict:
             "strength": f.strength, "fall": f.fall,
             "modes": [(m["mode"], round(m["missing_kw"], 2), round(m["stderr_kw"], 2))
                       for m in f.modes if math.isfinite(m["missing_kw"])],
-            "pack": run.pack,
+            "pack": run.pack, "logger_lag_s": run.bins.lag * run.profiles[0].dt_s,
             "resistance": run.resistance.finding() if run.resistance else None}

@@ -173,6 +173,9 @@ def write_html(d, path: str | Path) -> None:
                   **({"the pack's resistance (logged voltage)": d.pack_note}
                      if d.pack_note else {}),
                   **({"the logged speed unmet": d.unmet_note} if d.unmet_note else {}),
+                  **({"a logged second, as the logger took it": f"the model's second from "
+                      f"{d.logger_lag_s:+.1f} s of its time stamp"}
+                     if d.logger_lag_s is not None else {}),
                   "run time": f"{d.timings.get('total_s', 0):.1f} s"},
         how_to_read="missing power is the battery power the measured SoC implies minus the "
                     "model's; the ranking gives the share of it each candidate effect explains "
