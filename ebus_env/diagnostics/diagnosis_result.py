@@ -231,4 +231,4 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
         after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if ctx.add else
         f"model + {verdict}", domain=ctx.domain, days=ctx.days, since=since,
         since_interval=since_interval,
-        logger_lag_s=ctx.power.bins.lag * ctx.dt_s if ctx.power else None)
+        logger_lag_s=ctx.power.logger_lag_s if ctx.power else None)

@@ -444,6 +444,11 @@ class PowerRun:
     pack: dict
     resistance: object = None  # voltage.ResistanceCheck, or None
 
+    @property
+    def logger_lag_s(self) -> float:
+        """Where a logged second starts against its time stamp [s] (:func:`logger_lag`)."""
+        return self.bins.lag * self.profiles[0].dt_s
+
 
 def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=None) -> PowerRun:
     """The power path on BMS ``profiles`` (``day_of``: each profile's day, 0 first)."""
@@ -545,5 +550,5 @@ def summary(run: PowerRun) -> dict:
             "strength": f.strength, "fall": f.fall,
             "modes": [(m["mode"], round(m["missing_kw"], 2), round(m["stderr_kw"], 2))
                       for m in f.modes if math.isfinite(m["missing_kw"])],
-            "pack": run.pack, "logger_lag_s": run.bins.lag * run.profiles[0].dt_s,
+            "pack": run.pack, "logger_lag_s": run.logger_lag_s,
             "resistance": run.resistance.finding() if run.resistance else None}
