@@ -344,13 +344,19 @@ def test_grid_charger(fn):
     base = dict(charger_connected=1.0, charger_rating_w=math.nan, cc_current_a=900.0,
                 cv_taper=1.0, charge_current_max_a=900.0, ocv_v=ocv, resistance_ohm=r,
                 motor_power_w=0.0, dc_load_w=5000.0, time_s=0.0, power_kw=450.0,
-                efficiency=0.95, pulse_period_s=10.0, pulse_duty=1.0, pulse_low_frac=0.0)
+                efficiency=0.95, delivered_frac=1.0, pulse_period_s=10.0, pulse_duty=1.0,
+                pulse_low_frac=0.0)
     dc, grid = fn(**base)
     assert dc == pytest.approx(450e3) and grid == pytest.approx(450e3 / 0.95)
     assert fn(**{**base, "charger_connected": 0.0}) == (0.0, 0.0)
     # the profile's rating wins over the parameter; CC-limited below it
     dc, _ = fn(**{**base, "charger_rating_w": 18e3})
     assert dc == pytest.approx(18e3)
+    # a rating stated on the grid side delivers its share to the bus, which the grid pays
+    # the charger's losses on
+    dc, grid = fn(**{**base, "charger_rating_w": 300e3, "delivered_frac": 0.93})
+    assert dc == pytest.approx(279e3) and grid == pytest.approx(279e3 / 0.95)
+    assert fn(**{**base, "delivered_frac": 0.93})[0] == pytest.approx(0.93 * 450e3)
     dc, _ = fn(**{**base, "cc_current_a": 100.0})
     assert dc == pytest.approx(100 * (ocv + r * 100) + 5000.0)
     # two separate limits: a depot charger rated below what the pack accepts at high SoC

@@ -256,6 +256,27 @@ def test_a_threshold_the_log_never_reaches_where_it_starts_is_still_fitted(tmp_p
     assert fitted[cutoff][decel] > 4.0
 
 
+def test_a_charger_that_delivers_less_than_its_stated_rating_is_fitted_not_taken_for_a_load(
+        tmp_path):
+    """The log states the charger's rating on its grid side: the bus gets 93 % of it. Fitted,
+    the share leaves the bins at the charger's rating to the sensor's noise; held at a DC
+    rating's 1, they miss what the charger does not deliver (tens of kW), which a load while
+    charging would take for itself."""
+    name = "grid_charger.delivered_frac"
+    case, frame = bms_day(None, hours=2.0, plain=True, params={name: 0.93})
+    model = hidden.baseline_bus(case).build(hidden.DT_S)
+    profiles = load(frame, tmp_path, "grid-side")
+    bins, power_w, voltage = bus_bins(model, profiles)
+    rated = bins.fit & (bins.mode_share[:, MODES.index("charging")] > 0.5)
+    assert rated.sum() >= 5
+    fits = {fixed: fit_bus(model, profiles, bins, power_w, voltage, np.ones(len(bins)),
+                           fixed=fixed) for fixed in ((), (name,))}
+    missing = {k: np.mean(f.missing(power_w, bins.fit)[rated]) for k, f in fits.items()}
+    assert fits[()].values[name] == pytest.approx(0.93, abs=0.01)
+    assert abs(missing[()]) < 500.0  # W
+    assert missing[(name,)] > 10e3
+
+
 def test_each_logged_second_is_compared_with_the_model_as_the_logger_took_it(tmp_path):
     """A BMS logs each second's mean current. The model's steps averaged over the same
     second follow the logged power of the bus that made the log to within its sensor's

@@ -204,16 +204,20 @@ def mode_masks(run: np.ndarray, plugged: np.ndarray, logged_speed_mps: np.ndarra
 
 STEADY_W = 3e3  # the spread of the logged power within a bin at a charger's rating, at most
 RATED_LOADS_W = 30e3
+DELIVERED_LOW = 0.85
 """On a charger, the log shows the charger at its rating where the pack takes in no more than
-the rating less this (the bus's loads at most): the pack is not the limit there."""
+the rating's least delivered share (``DELIVERED_LOW``: a rating stated on the grid side, a
+cable's and a derating's losses, docs/physics.md §6.1) less ``RATED_LOADS_W`` (the bus's
+loads at most): the pack is not the limit there."""
 
 
-def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0) -> Bins:
+def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0,
+              delivered_frac: float = 1.0) -> Bins:
     """Bins of every profile from the model's run along it (``runs``: one ``(n_seconds,
-    len(TRACE))`` per profile, made with the logger's ``lag``): their modes, and whether
-    each enters the fits. A bin on a charger enters only where both the model's charger and
-    the logged power show the charger at its rating the whole bin (the loads then show as
-    they do standing)."""
+    len(TRACE))`` per profile, made with the logger's ``lag`` and a charger delivering
+    ``delivered_frac`` of its rating): their modes, and whether each enters the fits. A bin
+    on a charger enters only where both the model's charger and the logged power show the
+    charger at its rating the whole bin (the loads then show as they do standing)."""
     k = int(BIN_S)
     cols = {name: [] for name in ("profile", "first", "day", "block", "hour", "fit")}
     shares = []
@@ -231,8 +235,8 @@ def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0)
         dc = run[:, TRACE.index("charger_power_w")]
         rated = np.nan_to_num(p.channel("charger_rating_w")[::every][:len(run)])
         logged = log_power([p])[0][:len(run)]
-        at_rating = plugged & (rated > 0) & (dc >= 0.995 * rated) & (
-            logged <= -rated + RATED_LOADS_W)
+        at_rating = plugged & (rated > 0) & (dc >= 0.995 * delivered_frac * rated) & (
+            logged <= -DELIVERED_LOW * rated + RATED_LOADS_W)
         on = plugged[:n_bins * k].reshape(n_bins, k)
         full = at_rating[:n_bins * k].reshape(n_bins, k).all(axis=1)
         # a charger at its rating gives a steady power; a pack in its CV phase takes less

@@ -32,7 +32,7 @@ import numpy as np
 
 from ebus_env.diagnostics.heldout import Nuisance, fit_all
 from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
-from ebus_env.diagnostics.power import MODES, TRACE, Bins, anchored_runs
+from ebus_env.diagnostics.power import DELIVERED_LOW, MODES, TRACE, Bins, anchored_runs
 from ebus_env.diagnostics.residual import anchored_run, make_windows
 from ebus_env.diagnostics.voltage import resistance_check
 
@@ -40,12 +40,16 @@ PACK = ("rint_battery.cell_capacity_ah", "rint_battery.cell_resistance_mohm")
 BUS_PARAMETERS = {**{k: v for k, v in NUISANCE.items() if k not in PACK},
                   **RESOLVED_BY_CURRENT, "aero_drag.drag_coef": (0.7, 1.3),
                   "regen_cutoff.cutoff_speed_mps": (0.0, 3.0),
-                  "efficiency_map.regen_power_kw": (0.5, 1.25)}
+                  "efficiency_map.regen_power_kw": (0.5, 1.25),
+                  "grid_charger.delivered_frac": (DELIVERED_LOW, 1.02)}
 """The parameters fitted to a BMS log's power, with their search range as factors of the
-configured value (the diagnosis's bus-to-bus ranges, and three a log of the power resolves
-and a SoC log does not: the drag, the motor's regenerative power limit, and the speed below
+configured value (the diagnosis's bus-to-bus ranges, and four a log of the power resolves
+and a SoC log does not: the drag, the motor's regenerative power limit, the speed below
 which it stops regenerating, one of the paper's uncertain parameters: a motor whose regen
-fades out between 1.5 and 4 m/s brakes as one that stops at about 2.7)."""
+fades out between 1.5 and 4 m/s brakes as one that stops at about 2.7, and the share of its
+stated rating a charger delivers: a log's charger rating may be the grid side's, which
+delivers the charger's efficiency of it, and a charger at its rating shows the share to a
+per cent, where a load while charging would otherwise take it)."""
 SENSOR = {"current sensor gain": (-0.03, 0.03), "current sensor offset [A]": (-2.0, 2.0),
           "drivetrain loss while moving [kW]": (-2.0, 2.0)}
 """Terms of the logged power the bus's parameters do not give, each linear: the current

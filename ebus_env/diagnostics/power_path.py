@@ -463,7 +463,9 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     params = model.param_vector(model.carry_over(start))
     lag = logger_lag(model, profiles, params)
     first = anchored_runs(model, profiles, params, TRACE, lag)
-    bins = make_bins(profiles, [r[0] for r in first], day_of, lag)
+    delivered = model.equivalent("grid_charger.delivered_frac")
+    bins = make_bins(profiles, [r[0] for r in first], day_of, lag,
+                     params[model.param_index(delivered)] if delivered else 1.0)
     logged = bins.means(log_power(profiles))
     voltage = bins.means(log_voltage(profiles))
     use = bins.fit

@@ -41,6 +41,9 @@ def cccv_taper(soc_frac: float, capacity_ah: float, cv_soc_pct: float, decay_per
           "Hasan et al. 2023: 450 / 290 kW opportunity, 18 kW depot; tuned parameter"),
     Param("efficiency", 0.95, "1", (0.8, 1.0), "Charger efficiency grid -> DC, eta_ch",
           "docs/physics.md §6.1: 0.93-0.96"),
+    Param("delivered_frac", 1.0, "1", (0.5, 1.1),
+          "DC power the charger delivers at its rating over the rating stated, k_del",
+          "docs/physics.md §6.1: 1 for a DC rating, about eta_ch for a grid-side one"),
     Param("pulse_period_s", 10.0, "s", (0.2, 600.0), "Pulsed charging: period t_on + t_off"),
     Param("pulse_duty", 1.0, "1", (0.05, 1.0),
           "Pulsed charging: duty cycle d = t_on / period (1: continuous charging)"),
@@ -50,7 +53,8 @@ def cccv_taper(soc_frac: float, capacity_ah: float, cv_soc_pct: float, decay_per
 def grid_charger(charger_connected: float, charger_rating_w: float, cc_current_a: float, cv_taper: float,
                  charge_current_max_a: float, ocv_v: float, resistance_ohm: float, motor_power_w: float,
                  dc_load_w: float, time_s: float, power_kw: float, efficiency: float,
-                 pulse_period_s: float, pulse_duty: float, pulse_low_frac: float) -> tuple[float, float]:
+                 delivered_frac: float, pulse_period_s: float, pulse_duty: float,
+                 pulse_low_frac: float) -> tuple[float, float]:
     """DC power the charger delivers to the bus [W] and the grid power it draws [W].
 
     While connected, the charger feeds the bus loads and charges the pack with::
@@ -59,17 +63,21 @@ def grid_charger(charger_connected: float, charger_rating_w: float, cc_current_a
         I_rated: the current with which the pack takes P_rated - P_loads
         I    <- I * (1 if pulse on else low_frac)   pulse on for the first d of each period
         P_dc = min(I (OCV + R I) + P_loads, P_rated),  P_grid = P_dc / eta_ch
+        P_rated = k_del (the profile's rating, else power_kw)
 
     Two separate limits: the charger's rating, and what the pack accepts, its CC/CV current
     I_cc taper (docs/physics.md §5.4) and its own limits I_chg,max (C-rate, SoC ceiling, cell
     voltage window). A depot charger rated below the pack's acceptance delivers its rating up
-    to high SoC. When the loads exceed the rating, the pack supplies the difference.
+    to high SoC. When the loads exceed the rating, the pack supplies the difference. A
+    rating stated on the grid side, or a charger that loses some in its cable or derates,
+    delivers a share k_del < 1 of it.
     """
     if charger_connected < 0.5:
         return 0.0, 0.0
     rating_w = power_kw * 1e3
     if not math.isnan(charger_rating_w):
         rating_w = charger_rating_w
+    rating_w *= delivered_frac
     loads_w = motor_power_w + dc_load_w
     spare_w = rating_w - loads_w
     current_a = 0.0
