@@ -275,6 +275,12 @@ def test_a_charger_that_delivers_less_than_its_stated_rating_is_fitted_not_taken
     assert fits[()].values[name] == pytest.approx(0.93, abs=0.01)
     assert abs(missing[()]) < 500.0  # W
     assert missing[(name,)] > 10e3
+    # the report's table of the bus as its logs give it: the share inside its range, the
+    # sensor's gain (0.6 % in the log) beside it
+    rows = {r["parameter"]: r for r in fits[()].table(power_w, bins.fit)}
+    assert rows[name]["range"] == pytest.approx([0.85, 1.02]) and rows[name]["end"] is None
+    assert rows["current sensor gain"]["value"] == pytest.approx(0.006, abs=0.01)
+    assert name not in {r["parameter"] for r in fits[(name,)].table(power_w, bins.fit)}
 
 
 def test_each_logged_second_is_compared_with_the_model_as_the_logger_took_it(tmp_path):
@@ -384,6 +390,10 @@ def test_several_days_of_a_bus_name_the_effect_and_the_day_it_started(tmp_path):
     assert d.sentence.startswith("From 2026-01-15 on, ")
     assert d.nrmse["power_held_out_fall"]["cabin_hvac"] > 0.5
     assert d.to_json()["since"] == "2026-01-15"
+    fitted = {r["parameter"] for r in d.to_json()["bus_fit"]}
+    assert {"vehicle_body.curb_mass_kg", "current sensor gain, day 2"} <= fitted
+    d.write_html(tmp_path / "report.html")
+    assert "current sensor gain, day 2" in (tmp_path / "report.html").read_text()
     quiet = [p for k, f in enumerate(plain) for p in load(on_day(f, k), tmp_path, f"quiet{k}")]
     q = diagnose(bus, quiet, domain="power")
     assert q.domain == "power" and q.verdict is None, q.sentence

@@ -67,6 +67,7 @@ class Diagnosis:
     since: str | None = None  # the day the verdict (or a load outside the library) acts from
     since_interval: list[str] | None = None  # the days it may have started on (90 %)
     logger_lag_s: float | None = None  # power domain: where a logged second starts [s]
+    bus_fit: list[dict] | None = None  # power domain: the bus's parameters its logs give
 
     @property
     def range_ends(self) -> dict[str, str]:
@@ -120,7 +121,8 @@ class Diagnosis:
                 "significance", "status", "mode_clue", "ranking", "parameters", "selected",
                 "set_aside", "modes", "bins", "worst_windows", "clues", "data_issues",
                 "excluded_windows", "nrmse", "calibration", "reference", "resistance",
-                "timings", "domain", "days", "since", "since_interval", "logger_lag_s")
+                "timings", "domain", "days", "since", "since_interval", "logger_lag_s",
+                "bus_fit")
         out = {k: getattr(self, k) for k in keys}
         out["ladder"] = [r.to_json() for r in self.ladder]
         out["unmet_demand_s"] = self.unmet_demand_s
@@ -231,4 +233,5 @@ def diagnosis_of(ctx: DiagnosisRun) -> Diagnosis:
         after_label="model " + " ".join(r.label for r in fits.ladder[1:]) if ctx.add else
         f"model + {verdict}", domain=ctx.domain, days=ctx.days, since=since,
         since_interval=since_interval,
-        logger_lag_s=ctx.power.logger_lag_s if ctx.power else None)
+        logger_lag_s=ctx.power.logger_lag_s if ctx.power else None,
+        bus_fit=ctx.power.bus_table if ctx.power else None)

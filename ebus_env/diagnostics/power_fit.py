@@ -76,6 +76,7 @@ GRID = 8
 """Values across its range a parameter is tried at when its step moves no bin by a watt
 (:func:`_wake`), evenly on a log scale (a threshold's scale is what is unknown)."""
 MIN_SOC_SPAN = 0.05
+END_TOL = 0.02  # a value within this share of its range from an end lies at that end
 
 
 def search_box(model, fixed=()) -> dict[str, tuple[float, float]]:
@@ -177,18 +178,39 @@ class BusFit:
         """Every parameter of the model by name."""
         return {n: float(v) for n, v in zip(self.model.param_names, self.params, strict=True)}
 
+    def sensor_fit(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> np.ndarray:
+        """The :data:`SENSOR` terms' fitted values (gain [1], offset [A], loss while moving
+        [kW]; per day where so), fitted on the ``use`` bins with ``weights``."""
+        k = self.sensor_terms
+        w = np.ones(len(logged_w)) if weights is None else weights
+        local = Nuisance(self.nuisance.names[:k], self.nuisance.x[use, :k],
+                         self.nuisance.low[:k], self.nuisance.high[:k])
+        return fit_all(logged_w[use] - self.power_w[use], w[use], local)[2]
+
     def missing(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> np.ndarray:
         """The power the fitted bus misses per bin, the sensor's fitted gain and offset taken
         off (fitted on the ``use`` bins with ``weights``)."""
-        k = self.sensor_terms
-        sensor = self.nuisance.x[:, :k]
-        w = np.ones(len(logged_w)) if weights is None else weights
-        local = Nuisance(self.nuisance.names[:k], sensor[use], self.nuisance.low[:k],
-                         self.nuisance.high[:k])
-        _, _, coef, _, _ = fit_all(logged_w[use] - self.power_w[use], w[use], local)
-        return logged_w - self.power_w - sensor @ coef
+        coef = self.sensor_fit(logged_w, use, weights)
+        return logged_w - self.power_w - self.nuisance.x[:, :self.sensor_terms] @ coef
 
-    def range_ends(self, tol: float = 0.02) -> dict[str, str]:
+    def table(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> list[dict]:
+        """The bus as its logs give it: each fitted parameter and :data:`SENSOR` term with
+        its value, the range searched and the end of it the value lies at, if any."""
+        ends = self.range_ends()
+        rows = [{"parameter": name, "value": float(self.params[self.model.param_index(name)]),
+                 "range": list(self.box[name]), "end": ends.get(name)} for name in self.names]
+        k = self.sensor_terms
+        for name, value, low, high in zip(self.nuisance.names[:k],
+                                          self.sensor_fit(logged_w, use, weights),
+                                          self.nuisance.low[:k], self.nuisance.high[:k],
+                                          strict=True):
+            span = END_TOL * (high - low)
+            end = "lower" if value <= low + span else "upper" if value >= high - span else None
+            rows.append({"parameter": name, "value": float(value),
+                         "range": [float(low), float(high)], "end": end})
+        return rows
+
+    def range_ends(self, tol: float = END_TOL) -> dict[str, str]:
         """The fitted parameters at an end of their search range ("lower" or "upper")."""
         out = {}
         for name in self.names:

@@ -445,6 +445,12 @@ class PowerRun:
     resistance: object = None  # voltage.ResistanceCheck, or None
 
     @property
+    def bus_table(self) -> list[dict]:
+        """The bus as its logs give it: the fitted parameters and sensor terms
+        (:meth:`~ebus_env.diagnostics.power_fit.BusFit.table`)."""
+        return self.fit.table(self.logged_w, self.bins.fit, self.weights)
+
+    @property
     def logger_lag_s(self) -> float:
         """Where a logged second starts against its time stamp [s] (:func:`logger_lag`)."""
         return self.bins.lag * self.profiles[0].dt_s

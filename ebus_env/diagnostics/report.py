@@ -45,6 +45,13 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
         out.append(("The reference day's bus-to-bus values (the calibration searches within "
                     "a narrow range of them)", ["parameter", "value"],
                     [[name, f"{value:.4g}"] for name, value in ref["values"].items()]))
+    if d.bus_fit:
+        out.append(("The bus as its logs give it (fitted to the logged power; the sensor's "
+                    "terms per day where so)", ["parameter", "value", "range searched",
+                                                "at an end"],
+                    [[r["parameter"], f"{r['value']:.4g}",
+                      "{:.4g} to {:.4g}".format(*r["range"]), RANGE_END.get(r["end"], "")]
+                     for r in d.bus_fit]))
     out.append(("Which effect is missing (held-out share of the missing power, with its "
                 "5-95 % band over bootstrap resamples of the windows)",
                 ["effect", "kind", "explained %", "band %", "estimate (90 % interval)"],
