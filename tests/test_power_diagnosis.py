@@ -261,7 +261,7 @@ def test_a_charger_that_delivers_less_than_its_stated_rating_is_fitted_not_taken
     """The log states the charger's rating on its grid side: the bus gets 93 % of it. Fitted,
     the share leaves the bins at the charger's rating to the sensor's noise; held at a DC
     rating's 1, they miss what the charger does not deliver (tens of kW), which a load while
-    charging would take for itself."""
+    charging would take for itself. A log with too few bins at the rating does not fit it."""
     name = "grid_charger.delivered_frac"
     case, frame = bms_day(None, hours=2.0, plain=True, params={name: 0.93})
     model = hidden.baseline_bus(case).build(hidden.DT_S)
@@ -281,6 +281,9 @@ def test_a_charger_that_delivers_less_than_its_stated_rating_is_fitted_not_taken
     assert rows[name]["range"] == pytest.approx([0.85, 1.02]) and rows[name]["end"] is None
     assert rows["current sensor gain"]["value"] == pytest.approx(0.006, abs=0.01)
     assert name not in {r["parameter"] for r in fits[(name,)].table(power_w, bins.fit)}
+    # three bins at the rating do not pin it: it keeps its configured value
+    few = replace(bins, fit=bins.fit & ~(rated & (np.cumsum(rated) > 3)))
+    assert name not in fit_bus(model, profiles, few, power_w, voltage, np.ones(len(bins))).box
 
 
 def test_each_logged_second_is_compared_with_the_model_as_the_logger_took_it(tmp_path):

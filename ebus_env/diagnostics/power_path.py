@@ -489,8 +489,7 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     forms, effects, aside = candidate_forms(bus, profiles, bins, fit, days, add, recorded)
     by_label = {label(f): f for f in forms}
     say(f"held-out tests of {len(forms)} candidates")
-    nuisance = Nuisance(fit.nuisance.names, fit.nuisance.x[use], fit.nuisance.low,
-                        fit.nuisance.high)
+    nuisance = fit.tested_nuisance(use)
     held = HeldOut(missing[use], weights[use], nuisance, bins.block[use])
     tests = {name: held.test(name, f.signatures_w[:, use]) for name, f in by_label.items()}
     # a form outside the library from a day on must split the days there (the days' own
