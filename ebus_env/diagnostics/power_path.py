@@ -46,6 +46,7 @@ from ebus_env.diagnostics.power_candidates import (
     outside_forms,
 )
 from ebus_env.diagnostics.power_fit import (
+    CHARGER_SHARE,
     fit_bus,
     pack_resistance,
     pack_values,
@@ -469,7 +470,7 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     params = model.param_vector(model.carry_over(start))
     lag = logger_lag(model, profiles, params)
     first = anchored_runs(model, profiles, params, TRACE, lag)
-    delivered = model.equivalent("grid_charger.delivered_frac")
+    delivered = model.equivalent(CHARGER_SHARE)
     bins = make_bins(profiles, [r[0] for r in first], day_of, lag,
                      params[model.param_index(delivered)] if delivered else 1.0)
     logged = bins.means(log_power(profiles))
