@@ -215,31 +215,28 @@ class BusFit:
     def table(self, logged_w: np.ndarray, use: np.ndarray, weights=None) -> list[dict]:
         """The bus as its logs give it: each fitted parameter and :data:`SENSOR` term with
         its value, the range searched and the end of it the value lies at, if any."""
-        ends = self.range_ends()
-        rows = [{"parameter": name, "value": float(self.params[self.model.param_index(name)]),
-                 "range": list(self.box[name]), "end": ends.get(name)} for name in self.names]
         k = self.sensor_terms
-        for name, value, low, high in zip(self.nuisance.names[:k],
-                                          self.sensor_fit(logged_w, use, weights),
-                                          self.nuisance.low[:k], self.nuisance.high[:k],
-                                          strict=True):
-            span = END_TOL * (high - low)
-            end = "lower" if value <= low + span else "upper" if value >= high - span else None
-            rows.append({"parameter": name, "value": float(value),
-                         "range": [float(low), float(high)], "end": end})
-        return rows
+        fitted = [(name, self.params[self.model.param_index(name)], *self.box[name])
+                  for name in self.names]
+        fitted += zip(self.nuisance.names[:k], self.sensor_fit(logged_w, use, weights),
+                      self.nuisance.low[:k], self.nuisance.high[:k], strict=True)
+        return [{"parameter": name, "value": float(value), "range": [float(lo), float(hi)],
+                 "end": _end(value, lo, hi)} for name, value, lo, hi in fitted]
 
     def range_ends(self, tol: float = END_TOL) -> dict[str, str]:
         """The fitted parameters at an end of their search range ("lower" or "upper")."""
-        out = {}
-        for name in self.names:
-            lo, hi = self.box[name]
-            value = self.params[self.model.param_index(name)]
-            if hi > lo and value <= lo + tol * (hi - lo):
-                out[name] = "lower"
-            elif hi > lo and value >= hi - tol * (hi - lo):
-                out[name] = "upper"
-        return out
+        ends = {name: _end(self.params[self.model.param_index(name)], *self.box[name], tol)
+                for name in self.names}
+        return {name: end for name, end in ends.items() if end}
+
+
+def _end(value: float, lo: float, hi: float, tol: float = END_TOL) -> str | None:
+    """"lower" or "upper" where ``value`` lies within ``tol`` of its range from that end."""
+    if hi <= lo:
+        return None
+    if value <= lo + tol * (hi - lo):
+        return "lower"
+    return "upper" if value >= hi - tol * (hi - lo) else None
 
 
 def _signatures(model, profiles, params, names, box, lag=0):
