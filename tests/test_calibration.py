@@ -137,16 +137,35 @@ def test_twin_with_coarse_noisy_sparse_sampling_and_a_gap(tmp_path, bus12, model
 
 
 def test_a_parameter_without_influence_is_flagged_not_a_value(tmp_path, bus12, model):
-    """The log gives the charger's rating, so the charger power parameter has no effect."""
+    """The log gives the charger's rating, so the charger power parameter has no effect: named
+    free, it is reported not determined and a note says so; by default the share of the
+    rating the charger delivers takes its place among the paper's parameters, and a charger
+    stated on its grid side (93 % delivered) is fitted as such."""
     day = twin_day(bus12, 3.0).with_channels(charger_rating_w=250e3)
-    frame = synthetic_log(model, day, TRUTH, soc_start=0.95)
+    share = "grid_charger.delivered_frac"
+    frame = synthetic_log(model, day, {**TRUTH, share: 0.93}, soc_start=0.95)
+    profiles = load_log(write_log(tmp_path, frame)).profiles
     free = ["grid_charger.power_kw", "static_rcd.rcd_frac"]
-    result = calibrate(model, load_log(write_log(tmp_path, frame)).profiles, free=free,
-                       fixed={k: v for k, v in TRUTH.items() if k not in free},  # known
+    known = {k: v for k, v in TRUTH.items() if k not in free}
+    result = calibrate(model, profiles, free=free, fixed={**known, share: 0.93},
                        settings=ISOPTSettings(seed=0, iterations=15))
     assert result.determinacy["grid_charger.power_kw"].status == "not determined"
     assert result.determinacy["static_rcd.rcd_frac"].status == "well determined"
     assert result.values["static_rcd.rcd_frac"] == pytest.approx(0.12, abs=0.03)
+    assert any("grid_charger.power_kw moves nothing" in n and share in n for n in result.notes)
+    default = CalibrationProblem(model, profiles)
+    assert share in default.free and "grid_charger.power_kw" not in default.free
+    assert any(share in n for n in default.notes)
+    free = [share, "static_rcd.rcd_frac"]
+    result = calibrate(model, profiles, free=free, fixed=known,
+                       settings=ISOPTSettings(seed=0, iterations=15))
+    assert result.values[share] == pytest.approx(0.93, abs=0.02)
+    assert result.values["static_rcd.rcd_frac"] == pytest.approx(0.12, abs=0.03)
+    assert not any("moves nothing" in n for n in result.notes)
+    # a log without the rating keeps the paper's charging power
+    plain = synthetic_log(model, twin_day(bus12, 3.0), TRUTH, soc_start=0.95)
+    assert "grid_charger.power_kw" in CalibrationProblem(
+        model, load_log(write_log(tmp_path, plain, "plain.csv")).profiles).free
 
 
 def test_upper_bound_strategy_changes_work_not_results(tmp_path, bus12, model):

@@ -51,13 +51,31 @@ PAPER_PARAMS = (
     "regen_cutoff.cutoff_speed_mps",
 )
 """The seven uncertain parameters Hasan et al. 2023 tune, by qualified name."""
+CHARGING_POWER = "grid_charger.power_kw"
+CHARGER_SHARE = "grid_charger.delivered_frac"
 
 
+def logs_rating(profile: Profile) -> bool:
+    """Whether a log gives its charger's rating at every row the bus is on a charger (the
+    model's charger then takes the log's rating, and its own power moves nothing)."""
+    rating = profile.channels.get("charger_rating_w")
+    connected = profile.channels.get("charger_connected")
+    if rating is None or connected is None or not np.any(connected > 0.5):
+        return False
+    on = rating[connected > 0.5]
+    return bool(np.all(np.isfinite(on) & (on > 0)))
 
-def paper_params(model: Model) -> list[str]:
+
+def paper_params(model: Model, profiles: Sequence[Profile] = ()) -> list[str]:
     """The paper's parameters this model has, under their names in it (a slot filled by a
-    refinement keeps them: ``regen_soc_limit.cutoff_speed_mps``)."""
-    return [m for m in map(model.equivalent, PAPER_PARAMS) if m is not None]
+    refinement keeps them: ``regen_soc_limit.cutoff_speed_mps``). Where every profile gives
+    its charger's rating (:func:`logs_rating`), the charging power the paper tunes is the share
+    of that rating the charger delivers, k_del (docs/physics.md §6.1): a rating stated on the
+    grid side delivers the charger's efficiency of it."""
+    names: tuple[str, ...] = PAPER_PARAMS
+    if profiles and all(map(logs_rating, profiles)):
+        names = tuple(CHARGER_SHARE if n == CHARGING_POWER else n for n in names)
+    return [m for m in map(model.equivalent, names) if m is not None]
 
 
 LOAD_LEVELS = (0.0, 0.5, 1.0)
@@ -251,11 +269,20 @@ class CalibrationProblem:
                               f"[{free!r}].")
         fixed = dict(fixed or {})
         self.base = model.param_vector(fixed)
+        rated = all(map(logs_rating, profiles))
         if free is None:
-            free = paper_params(model)
+            free = paper_params(model, profiles)
             missing = [p for p in PAPER_PARAMS if model.equivalent(p) is None]
             if missing:
                 self.notes.append(f"the model lacks {', '.join(missing)}: not fitted")
+            if rated and model.equivalent(CHARGER_SHARE):
+                self.notes.append(f"the log gives the charger's rating: {CHARGER_SHARE} (the "
+                                  f"share of it delivered) is fitted in place of {CHARGING_POWER}")
+        elif rated and CHARGING_POWER in free:
+            self.notes.append(
+                f"{CHARGING_POWER} moves nothing: the log gives the charger's rating, which the "
+                f"model takes in its place (fit {CHARGER_SHARE}, the share of the rating the "
+                "charger delivers, for the charging power)")
         free = [p for p in free if p not in fixed]
         if not free:
             raise ConfigError("Nothing to calibrate: give free parameters (--params, or free= "

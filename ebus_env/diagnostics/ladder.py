@@ -266,6 +266,10 @@ def calibrate_rung(bus: BusConfig, added: list[Effect], profiles, cal: Blocks, h
     nuisance = nuisance_ranges(model, profiles)
     if free is None:
         strengths = [f"{eff.name}.{p}" for eff in added for p in eff.strength_params]
+        # the paper's parameters as named: on a log with its charger's rating the charging
+        # power moves nothing, and the share of the rating delivered keeps its configured
+        # value (freed, on a 2.5-h BMS log of the truth simulator's grade day it let the CC/CV
+        # taper move to another optimum, and the grade went unnamed)
         free = list(dict.fromkeys([*(known.params or paper_params(model)), *nuisance,
                                    *strengths]))
     free = [n for n in free if n not in known.fixed]

@@ -30,9 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ebus_env.calibration.problem import CHARGER_SHARE
 from ebus_env.diagnostics.heldout import Nuisance, fit_all
 from ebus_env.diagnostics.ladder import NUISANCE, RESOLVED_BY_CURRENT
-from ebus_env.diagnostics.power import DELIVERED_LOW, MODES, TRACE, Bins, anchored_runs
+from ebus_env.diagnostics.power import DELIVERED_RANGE, MODES, TRACE, Bins, anchored_runs
 from ebus_env.diagnostics.residual import anchored_run, make_windows
 from ebus_env.diagnostics.voltage import resistance_check
 
@@ -40,8 +41,7 @@ PACK = ("rint_battery.cell_capacity_ah", "rint_battery.cell_resistance_mohm")
 BUS_PARAMETERS = {**{k: v for k, v in NUISANCE.items() if k not in PACK},
                   **RESOLVED_BY_CURRENT, "aero_drag.drag_coef": (0.7, 1.3),
                   "regen_cutoff.cutoff_speed_mps": (0.0, 3.0),
-                  "efficiency_map.regen_power_kw": (0.5, 1.25),
-                  "grid_charger.delivered_frac": (DELIVERED_LOW, 1.02)}
+                  "efficiency_map.regen_power_kw": (0.5, 1.25), CHARGER_SHARE: DELIVERED_RANGE}
 """The parameters fitted to a BMS log's power, with their search range as factors of the
 configured value (the diagnosis's bus-to-bus ranges, and four a log of the power resolves
 and a SoC log does not: the drag, the motor's regenerative power limit, the speed below
@@ -65,7 +65,6 @@ every test. On several days the sensor's gain and offset are each day's own
 swapped, and one gain for all the days would leave each day's difference as a missing power
 that follows the day, as the weather's effects do."""
 PER_DAY = ("current sensor gain", "current sensor offset [A]")
-CHARGER_SHARE = "grid_charger.delivered_frac"
 MIN_RATED_BINS = 6
 """The bins at a charger's rating (a minute) the log must hold for the share of its rating a
 charger delivers to be fitted; with fewer it keeps its configured value (on the backward

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from ebus_env.calibration.problem import CHARGER_SHARE
 from ebus_env.diagnostics.candidates import effect_candidates
 from ebus_env.diagnostics.heldout import HeldOut, Nuisance, Test, fit_all, margin, noise_unit
 from ebus_env.diagnostics.power import (
@@ -46,7 +47,6 @@ from ebus_env.diagnostics.power_candidates import (
     outside_forms,
 )
 from ebus_env.diagnostics.power_fit import (
-    CHARGER_SHARE,
     fit_bus,
     pack_resistance,
     pack_values,
