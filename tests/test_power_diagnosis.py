@@ -25,7 +25,7 @@ from ebus_env.diagnostics.power import (
     logs_power,
     make_bins,
 )
-from ebus_env.diagnostics.power_candidates import Form
+from ebus_env.diagnostics.power_candidates import Form, switched_on
 from ebus_env.diagnostics.power_fit import (
     _dead,
     _signatures,
@@ -359,6 +359,43 @@ def test_a_cabin_heater_hidden_from_the_bus_is_named_and_a_control_day_names_not
     assert quiet.finding.tests[0].chi2 < quiet.finding.needed
 
 
+
+def test_a_load_switching_at_stops_is_read_from_the_steps_the_model_does_not_make():
+    """Within a stop the missing power steps by 5 kW and back: those seconds are on; a stop
+    with noise only, or with a load that stays on the whole stop, marks nothing, and nothing
+    counts while moving or in a stop's first and last seconds."""
+    rng = np.random.default_rng(4)
+    still = np.zeros(400, bool)
+    missing = rng.normal(0.0, 3e3, 400)  # driving: the model's launch and halt, kW off
+    for start in (50, 150, 250, 350):
+        still[start:start + 30] = True
+        missing[start:start + 30] = rng.normal(0.0, 100.0, 30)
+    missing[160:170] += 5e3  # switched on 10 s within the second stop
+    missing[250:280] += 5e3  # on for the whole fourth stop: no step within it
+    on = switched_on(missing, still)
+    assert np.array_equal(np.flatnonzero(on), np.arange(160, 170))
+
+
+def test_a_compressor_at_stops_is_a_load_outside_the_library_where_it_runs(tmp_path):
+    """A 5 kW load that runs 8 s in every other stop, added to the log of a day with nothing
+    else hidden: no library effect explains it, the switching load does, at its power, and
+    its clue is the idle mode."""
+    case, frame = bms_day(None, hours=3.0)
+    stopped = (frame["speed_kmh"].to_numpy() == 0.0) & (frame["charging"].to_numpy() == 0)
+    edges = np.flatnonzero(np.diff(np.r_[0, stopped.astype(int), 0]))
+    load_w = np.zeros(len(frame))
+    for start, stop in list(zip(edges[::2], edges[1::2], strict=True))[::2]:
+        if stop - start >= 19:  # the day's stops: 19-20 s
+            load_w[start + 5:start + 13] = 5e3
+    assert load_w.sum() > 60 * 5e3  # the day has such stops
+    frame["battery_current_a"] += load_w / frame["battery_voltage_v"]
+    run = diagnose_power(hidden.baseline_bus(case), load(frame, tmp_path, "compressor"), [0])
+    f = run.finding
+    assert f.status == "outside library" and f.verdict is None and f.clue == "idle"
+    top = f.tests[0]
+    assert f.forms[top.name].name == "load switching on and off while standing"
+    assert top.chi2 > f.needed
+    assert top.beta == pytest.approx(5.0, rel=0.15)  # kW, the signature's unit
 
 def on_day(frame, day: int):
     """The same log ``day`` days later (its time stamps moved)."""

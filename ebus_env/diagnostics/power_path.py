@@ -71,7 +71,9 @@ OUTSIDE_MODE = {"load while standing": "idle", "load while accelerating": "accel
                 "load while cruising": "cruising", "load while braking": "braking/regen",
                 "load while charging": "CC charging",
                 "load while braking at high SoC": "braking/regen",
-                "load after the doors close": "idle", "resisting force": "cruising"}
+                "load after the doors close": "idle",
+                "load switching on and off while standing": "idle",
+                "resisting force": "cruising"}
 """The operating mode (as the report names them) where each form outside the library puts
 the power it misses."""
 
@@ -106,17 +108,18 @@ class Finding:
 
 def class_weights(residual: np.ndarray, bins, use: np.ndarray) -> np.ndarray:
     """1 / variance of each bin from the robust scatter (MAD) of the residual in its dominant
-    operating mode."""
+    operating mode; a mode with too few bins to say takes the scatter of all bins."""
     mode = np.argmax(bins.mode_share, axis=1)
-    w = np.ones(len(residual))
     floor = 50.0  # W: a bin is never trusted beyond the log's resolution
+
+    def sigma(r):
+        return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), floor)
+
+    w = np.full(len(residual), 1.0 / sigma(residual[use]) ** 2 if use.any() else 1.0)
     for m in np.unique(mode):
         inside = use & (mode == m)
-        if inside.sum() < 10:
-            continue
-        r = residual[inside]
-        sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), floor)
-        w[mode == m] = 1.0 / sigma**2
+        if inside.sum() >= 10:
+            w[mode == m] = 1.0 / sigma(residual[inside]) ** 2
     return w
 
 
