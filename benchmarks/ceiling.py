@@ -14,9 +14,7 @@ simulator, the backward model or FASTSim):
 * a **sensitivity** per bus-to-bus parameter: the day with the parameter 5 % higher (an
   efficiency 5 % lower) less ``y_0`` (finite differences of the source itself: curb mass,
   rolling and air resistance, drivetrain losses, base auxiliaries, pack capacity and
-  resistance), and the chargers' delivered power below their logged rating (the share of it
-  they deliver, which the diagnosis fits too: a profile over ``SHARE_STEPS``, since a
-  session that ends at the stop SoC ends later, which no linear term follows);
+  resistance);
 * the log's own nuisances: on a BMS log the current sensor's gain (``y_0`` itself) and
   offset (the terminal voltage: offset x V); on a SoC log the BMS's capacity error (``y_0``'s
   SoC change), the current offset's drift (a constant SoC change per window) and its count of
@@ -59,9 +57,6 @@ LAGS = 4
 SNR_MIN = 3.0
 SEPARATION = 9.0
 STEP = 0.05  # the parameters' finite-difference step, relative
-SHARE_STEPS = (*(0.0025 * k for k in range(1, 33)), 0.1, 0.125, 0.15)
-"""The chargers' shortfalls from their rating the fits choose from (1 - the share delivered):
-fine where a load on a charger (a few kW on 150-450 kW) would be taken for one."""
 CANDIDATE_SEED = 99  # the stream of the candidates' values (not the hidden effect's)
 SMOKE_HOURS = 3.0
 
@@ -106,7 +101,6 @@ class Source:
         power = trace["battery_current_a"] * trace["battery_voltage_v"]
         charged = np.cumsum(np.maximum(-trace["battery_current_a"].to_numpy(float), 0.0))
         return pd.DataFrame({"power_w": power.to_numpy(float),
-                             "charging": trace["p_charger_w"].to_numpy(float) > 0.0,
                              "volts_v": trace["battery_voltage_v"].to_numpy(float),
                              "soc": trace["soc_frac"].to_numpy(float),
                              "charged_as": charged})
@@ -216,23 +210,6 @@ def ceiling_day(job) -> dict:
             if key in moved:
                 moved[key] = moved[key] * (1.0 + step)
         sensitivities[param] = source.run(plan, moved, None, {}, day)
-    # the share of its rating the charger delivers: the log gives the rating, not what the
-    # charger puts out, and the diagnosis fits that share as it fits the bus's parameters.
-    # It moves when a session ends (at the stop SoC), which no linear term follows: each fit
-    # takes the share's best shortfall of SHARE_STEPS (a profile over it)
-    shares = []
-    for shortfall in SHARE_STEPS:
-        short = plan.copy()
-        short["charger_kw"] = plan["charger_kw"] * (1.0 - shortfall)
-        shares.append(source.run(short, base, None, {}, day))
-    # a session that ends at the stop SoC ends later the less power it put in: that second
-    # moves with the energy alone, which no linear term follows, so the windows where a run's
-    # sessions do not match the day's without any effect are left out
-    runs = [*candidates.values(), *sensitivities.values(), *shares]
-    moved = np.zeros(n, bool)
-    for r in runs:
-        m = min(n, len(r))
-        moved[:m] |= r["charging"].to_numpy()[:m] != y0["charging"].to_numpy()[:m]
     measured = {"bms": (log["battery_current_a"] * log["battery_voltage_v"]).to_numpy(float),
                 "soc": log["soc_pct"].to_numpy(float) / 100.0}
     row = {"source": name, "case": case.case_id, "hidden": case.hidden,
@@ -240,27 +217,23 @@ def ceiling_day(job) -> dict:
     for kind, width in WINDOW_S.items():
         column, difference = ("power_w", False) if kind == "bms" else ("soc", True)
 
-        keep = ~windows(moved.astype(float), width, False).astype(bool)
-
-        def signal(run, column=column, width=width, difference=difference, keep=keep):
-            return windows(run[column].to_numpy()[:n], width, difference)[keep]
+        def signal(run, column=column, width=width, difference=difference):
+            return windows(run[column].to_numpy()[:n], width, difference)
 
         base_signal = signal(y0)
-        y = windows(measured[kind][:n], width, difference)[keep] - base_signal
+        y = windows(measured[kind][:n], width, difference) - base_signal
         nuisance = [base_signal, np.ones_like(base_signal)]
         if kind == "bms":  # a current offset shows as offset x V
-            nuisance[1] = windows(y0["volts_v"].to_numpy()[:n], width, False)[keep]
+            nuisance[1] = windows(y0["volts_v"].to_numpy()[:n], width, False)
         else:  # the BMS counts charge without the cells' coulombic efficiency
-            nuisance.append(windows(y0["charged_as"].to_numpy()[:n], width, True)[keep])
+            nuisance.append(windows(y0["charged_as"].to_numpy()[:n], width, True))
         basis = np.column_stack([signal(r) - base_signal for r in sensitivities.values()]
                                 + nuisance)
-        with_share = [np.column_stack((basis, signal(r) - base_signal)) for r in shares]
         fits = {}
         for effect, run in candidates.items():
             sig = signal(run) - base_signal
             if np.abs(sig).max() > 1e-9 * max(np.abs(base_signal).max(), 1.0):
-                fits[effect] = min((fit(y, b, sig) for b in with_share),
-                                   key=lambda f: f["rss"] if np.isfinite(f["rss"]) else np.inf)
+                fits[effect] = fit(y, basis, sig)
         own = fits.get(case.hidden)
         others = {e: f for e, f in fits.items() if e != case.hidden}
         # one-sided: an effect acts with a positive strength (a load draws, a force resists)
