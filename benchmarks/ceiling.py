@@ -325,8 +325,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"  {name} not available ({exc}): skipped")
             continue
         jobs += [(name, c, str(args.cache) if args.cache else None)
-                 for c in cases_of(source, args.smoke, per_effect, controls,
-                                          tuple(args.effect))]
+                 for c in cases_of(source, args.smoke, per_effect, controls, tuple(args.effect))]
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         for row in pool.map(ceiling_day, jobs):
