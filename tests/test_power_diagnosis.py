@@ -359,7 +359,6 @@ def test_a_cabin_heater_hidden_from_the_bus_is_named_and_a_control_day_names_not
     assert quiet.finding.tests[0].chi2 < quiet.finding.needed
 
 
-
 def test_a_load_switching_at_stops_is_read_from_the_steps_the_model_does_not_make():
     """Within a stop the missing power steps by 5 kW and back: those seconds are on; a stop
     with noise only, or with a load that stays on the whole stop, marks nothing, and nothing
@@ -396,6 +395,7 @@ def test_a_compressor_at_stops_is_a_load_outside_the_library_where_it_runs(tmp_p
     assert f.forms[top.name].name == "load switching on and off while standing"
     assert top.chi2 > f.needed
     assert top.beta == pytest.approx(5.0, rel=0.15)  # kW, the signature's unit
+
 
 def on_day(frame, day: int):
     """The same log ``day`` days later (its time stamps moved)."""

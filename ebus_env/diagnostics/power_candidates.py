@@ -23,7 +23,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-from ebus_env.diagnostics.power import MODES, TRACE, Bins, anchored_runs, log_power
+from ebus_env.diagnostics.power import (
+    MODES,
+    TRACE,
+    Bins,
+    anchored_runs,
+    log_power,
+    mode_masks,
+)
 
 AFTER_DOORS_S = 120.0  # how long a compressor refills the air after the doors close
 SWITCH_W = 2e3
@@ -78,12 +85,12 @@ def outside_forms(profiles, bins: Bins, base_runs: list[np.ndarray]) -> list[For
     for p, run in zip(profiles, base_runs, strict=True):
         every = max(1, int(round(1.0 / p.dt_s)))
         n = len(run)
-        still = ((run[:, v_at] <= 0.1) & (p.channel("speed_ref_mps")[::every][:n] <= 0.1)
-                 & (p.channel("charger_connected")[::every][:n] <= 0.5))
-        switched.append(switched_on(log_power([p])[0][:n] - run[:, p_at], still))
-        door = p.channel("door_open")[::every][:len(run)] > 0.5
+        plugged = p.channel("charger_connected")[::every][:n] > 0.5
+        standing = mode_masks(run, plugged, p.channel("speed_ref_mps")[::every][:n])[:, 0] > 0
+        switched.append(switched_on(log_power([p])[0][:n] - run[:, p_at], standing))
+        door = p.channel("door_open")[::every][:n] > 0.5
         closed = np.flatnonzero(door[:-1] & ~door[1:]) + 1
-        after = np.zeros(len(run))
+        after = np.zeros(n)
         for c in closed:
             after[c:c + int(AFTER_DOORS_S)] = 1.0
         doors.append(after)
