@@ -115,8 +115,8 @@ def outside_forms(profiles, bins: Bins, base_runs: list[np.ndarray]) -> list[For
 def switched_on(missing_w: np.ndarray, still: np.ndarray) -> np.ndarray:
     """The seconds at a stop when a load the model lacks is on: within each stop (``still``,
     its first and last :data:`EDGE_S` seconds left out) whose missing power (3-s median)
-    steps by :data:`SWITCH_W` or more, the seconds it stands half a step or more above its
-    lowest. The steps are read from the log itself, like the doors: a stop without one marks
+    steps by :data:`SWITCH_W` or more, the seconds it stands half of :data:`SWITCH_W` or more
+    above its lowest. The steps are read from the log itself, like the doors: a stop without one marks
     nothing, so noise, and a load that stays on, mark nothing."""
     on = np.zeros(len(missing_w), bool)
     edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
