@@ -92,6 +92,19 @@ def strength_rows(model, params: np.ndarray, name: str | None, values) -> tuple[
     return rows, np.asarray(values, float)
 
 
+def shape_settings(model, eff: Effect) -> list[dict[str, float]]:
+    """Each declared value of each of ``eff``'s shape parameters (one at a time, qualified
+    names) other than the model's own and inside its bounds: the settings to try its
+    strengths at besides the model's."""
+    out = []
+    for name, values in eff.shape_params.items():
+        qualified = f"{eff.name}.{name}"
+        i = model.param_index(qualified)
+        low, high = model.bounds[i]
+        out += [{qualified: v} for v in values if low <= v <= high and v != model.params[i]]
+    return out
+
+
 def constant_drivers(eff: Effect, runs) -> bool:
     """Whether ``eff`` has no state and each of its drivers holds one value along the recorded
     ``runs`` of the bus (a driver they do not record counts as varying)."""

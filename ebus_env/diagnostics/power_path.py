@@ -28,7 +28,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from ebus_env.calibration.problem import CHARGER_SHARE
-from ebus_env.diagnostics.candidates import effect_candidates
+from ebus_env.diagnostics.candidates import effect_candidates, strength_rows
 from ebus_env.diagnostics.heldout import HeldOut, Nuisance, Test, fit_all, margin, noise_unit
 from ebus_env.diagnostics.power import (
     BIN_S,
@@ -52,7 +52,15 @@ from ebus_env.diagnostics.power_fit import (
     pack_values,
     resistance_check_at,
 )
-from ebus_env.diagnostics.voltage import AGEING, ages, day_step, explain_change, step_strength
+from ebus_env.diagnostics.voltage import (
+    AGEING,
+    MIN_CHANGE,
+    ages,
+    day_step,
+    explain_change,
+    predicted_ln_ratios,
+    step_strength,
+)
 
 ALPHA = 0.01
 """The chance, on a day with nothing missing, that some candidate passes, over all the
@@ -389,6 +397,19 @@ def implausible_why(form: Form, test: Test, side: str) -> str:
             "log shows)")
 
 
+def steady_pack_why(finding: Finding, moved: float, check) -> str:
+    """Why an effect the power named is withdrawn: at its fitted strength it would move the
+    pack's resistance by ``moved`` (ln span between periods) where the logged voltage shows
+    it steady (:data:`~ebus_env.diagnostics.voltage.MIN_CHANGE`). Set on the truth
+    simulator's control day 04: a pack held at 25 degC, whose missing power a pack 24 K warm
+    at the start took up in part."""
+    value = ", ".join(f"{k} = {v:.4g}" for k, v in finding.strength.get("parameters", {}).items())
+    return (f"{finding.verdict} removes {100 * finding.fall:.0f} % of the missing power on "
+            f"held-out blocks, but at {value} it would move the pack's resistance by "
+            f"{100 * moved:.0f} % over the log, where the logged voltage shows it steady (within "
+            f"{100 * check.span:.0f} %): the power's shape is another's")
+
+
 def mode_table(residual, w, bins, use) -> list[dict]:
     """The missing power in each operating mode [kW]: the weighted least-squares fit of each
     bin's missing power to its shares of time in the modes, with block-bootstrap standard
@@ -418,18 +439,29 @@ def mode_table(residual, w, bins, use) -> list[dict]:
             for m, c, s, h in zip(MODES, coef, se, hours, strict=True)]
 
 
-def voltage_evidence(model, profiles, params, candidates, day_of: list[int]):
+def voltage_evidence(model, profiles, params, candidates, day_of: list[int],
+                     named: tuple[str, dict] | None = None):
     """What the logged voltage says of the pack's resistance over the model's, which library
     effect reproduces a change of it over the log (:mod:`~ebus_env.diagnostics.voltage`),
     and on several days whether it rose from a day on (``check.step``); None without a
-    change to show."""
+    change to show. ``named``: the effect the power named and its fitted strength; returned
+    beside the check is how far that effect would move the pack's resistance over the log
+    (the span of its ln ratio between periods; 0 for one that does not move it)."""
     check, windows, anchored = resistance_check_at(model, profiles, params)
+    usable = np.ones(len(windows), bool)
     if check is not None and check.changes:
-        check.explained_by = explain_change(check, profiles, anchored, windows,
-                                            np.ones(len(windows), bool), candidates)
+        check.explained_by = explain_change(check, profiles, anchored, windows, usable,
+                                            candidates, shapes=True)
     if check is not None:
         check.step = day_step(check, windows, profiles, day_of)
-    return check
+    moved = 0.0
+    c = next((c for c in candidates if named and c.name == named[0]), None)
+    if check is not None and named and c is not None and c.strength_param in named[1]:
+        row, _ = strength_rows(c.model, c.params, c.strength_param,
+                               [named[1][c.strength_param]])
+        ln = predicted_ln_ratios(check, c.model, row[0], profiles, anchored, windows, usable)
+        moved = float(np.nanmax(ln) - np.nanmin(ln)) if np.isfinite(ln).any() else 0.0
+    return check, moved
 
 
 @dataclass
@@ -529,7 +561,14 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                                                           by_label[top.name].name)
     finding.modes = mode_table(missing, weights, bins, use)
     say("the pack's resistance from the logged voltage")
-    check = voltage_evidence(model, profiles, fit.params, effects, day_of)
+    named = (finding.verdict, finding.strength.get("parameters", {})) \
+        if finding.status == "named" else None
+    check, moved = voltage_evidence(model, profiles, fit.params, effects, day_of, named)
+    if check is not None and not check.changes and moved >= MIN_CHANGE:
+        # the two signals are independent, and the voltage is the pack's own measure
+        finding.why = steady_pack_why(finding, moved, check)
+        finding.status, finding.verdict, finding.strength = "implausible", None, {}
+        finding.since_day, finding.since_interval = 0, (0, 0)
     if check is not None and check.step is not None and finding.status != "named" \
             and ages(bus):
         # the pack's own measure, beside which the power's shapes are second-hand: a weak

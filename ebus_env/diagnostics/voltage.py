@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import t as t_dist
 
-from ebus_env.diagnostics.candidates import strength_rows
+from ebus_env.diagnostics.candidates import shape_settings, strength_rows
 from ebus_env.diagnostics.residual import (
     PACK_SIGNALS,
     Windows,
@@ -206,48 +206,65 @@ class VoltageFit:
     index: int  # of the best among the candidate's strengths (its signatures)
     value: float  # the best strength
     interval: tuple[float, float]  # the strengths that fit as well within a 90 % band
+    settings: dict = field(default_factory=dict)  # shape parameters it was run at, if not the bus's
 
     def to_json(self) -> dict:
         return {"effect": self.effect, "explained": self.explained,
-                "parameters": {self.parameter: self.value},
+                "parameters": {self.parameter: self.value, **self.settings},
                 "interval": {self.parameter: list(self.interval)}}
 
 
-def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
-                   usable: np.ndarray, candidates) -> list[VoltageFit]:
-    """Which missing effects reproduce the log's change of resistance over the day, best
-    first: each candidate effect that moves the model's resistance at all (an anchored run at
-    either end of its strengths) is run at each of its strengths, its resistance over the
-    model's per period compared with the log's (:func:`strength_fit`)."""
+def predicted_ln_ratios(check: ResistanceCheck, model, row: np.ndarray, profiles, anchored,
+                        windows: Windows, usable: np.ndarray) -> np.ndarray:
+    """ln of the resistance ``model`` at parameter ``row`` shows over the checked model's, per
+    period of ``check`` (windows anchored as the check's were)."""
     every = anchored[0].record_every
     base = check.model_ohm
     periods = [h["start_h"] for h in check.periods]
-    start = period_starts_h(windows)
+    runs = [anchored_run(model, p, row, windows, k, every) for k, p in enumerate(profiles)]
+    ratio = window_resistances(runs, windows, usable) / np.where(base > 0, base, np.nan)
+    ratio[~np.isin(period_starts_h(windows), periods)] = np.nan
+    mine = {h["start_h"]: h["ratio"] for h in by_period(ratio, windows)}
+    return np.log([mine.get(h, np.nan) for h in periods])
+
+
+def explain_change(check: ResistanceCheck, profiles, anchored, windows: Windows,
+                   usable: np.ndarray, candidates, shapes: bool = False) -> list[VoltageFit]:
+    """Which missing effects reproduce the log's change of resistance over the day, best
+    first: each candidate effect that moves the model's resistance at all (an anchored run at
+    either end of its strengths) is run at each of its strengths, its resistance over the
+    model's per period compared with the log's (:func:`strength_fit`). ``shapes``: also at
+    each value of the effect's shape parameters (a pack's thermal time constant, which sets
+    how fast a cold pack warms by its losses), the setting that explains most kept."""
     logged = np.log([h["ratio"] for h in check.periods])
     weight = (np.array([h["ratio"] / h["stderr"] for h in check.periods])) ** 2
 
-    def predicted(c, row):  # ln of the candidate's resistance over the model's, per period
-        runs = [anchored_run(c.model, p, row, windows, k, every) for k, p in enumerate(profiles)]
-        ratio = window_resistances(runs, windows, usable) / np.where(base > 0, base, np.nan)
-        ratio[~np.isin(start, periods)] = np.nan
-        mine = {h["start_h"]: h["ratio"] for h in by_period(ratio, windows)}
-        return np.log([mine.get(h, np.nan) for h in periods])
+    def predicted(c, row):
+        return predicted_ln_ratios(check, c.model, row, profiles, anchored, windows, usable)
 
     out = []
     for c in candidates:
         if c.kind == "parameter" or c.strengths is None:
             continue
         rows, values = strength_rows(c.model, c.params, c.strength_param, c.strengths)
-        ends = {int(i): predicted(c, rows[i]) for i in (np.argmin(values), np.argmax(values))}
-        if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends.values()) < MIN_CHANGE / 4:
-            continue  # it does not move the pack's resistance
-        ln_ratios = np.array([ends[i] if i in ends else predicted(c, rows[i])
-                              for i in range(len(rows))])
-        fit = strength_fit(values, ln_ratios, logged, weight)
-        if fit is not None:
-            j, explained, interval = fit
-            out.append(VoltageFit(c.name, explained, c.strength_param, j, float(values[j]),
-                                  interval))
+        settings = [{}] + (shape_settings(c.model, c.effect) if shapes and c.effect else [])
+        fits = []
+        for setting in settings:
+            at = rows.copy()
+            for name, v in setting.items():
+                at[:, c.model.param_index(name)] = v
+            ends = {int(i): predicted(c, at[i]) for i in (np.argmin(values), np.argmax(values))}
+            if max(np.nanmax(np.abs(x - np.nanmean(x))) for x in ends.values()) < MIN_CHANGE / 4:
+                continue  # it does not move the pack's resistance
+            ln_ratios = np.array([ends[i] if i in ends else predicted(c, at[i])
+                                  for i in range(len(at))])
+            fit = strength_fit(values, ln_ratios, logged, weight)
+            if fit is not None:
+                j, explained, interval = fit
+                fits.append(VoltageFit(c.name, explained, c.strength_param, j,
+                                       float(values[j]), interval, setting))
+        if fits:
+            out.append(max(fits, key=lambda f: f.explained))
     return sorted(out, key=lambda f: -f.explained)
 
 

@@ -132,6 +132,7 @@ class Effect:
     inputs: tuple[Input, ...] = ()
     drivers: tuple[str, ...] = ()
     key_params: tuple[str, ...] = ()
+    shape_params: dict[str, tuple[float, ...]] = field(default_factory=dict)
     refines: str | None = None
     label: str = ""
     doc: str = ""
@@ -178,7 +179,7 @@ class Effect:
                         f"Effect '{self.name}': argument '{arg}' may not contain '__' (reserved "
                         "for generated names)."
                     )
-        for name in self.key_params:
+        for name in (*self.key_params, *self.shape_params):
             self.param(name)
         for handle, name in self.handles.items():
             if handle not in HANDLES:
@@ -264,6 +265,7 @@ def effect(
     returns: Sequence[str] = (),
     drivers: Sequence[str] = (),
     key_params: Sequence[str] = (),
+    shape_params: dict[str, Sequence[float]] | None = None,
     refines: str | None = None,
     label: str = "",
     handles: dict[str, str] | None = None,
@@ -274,7 +276,9 @@ def effect(
     For a contribution, the function returns the contribution followed by ``returns`` (extra
     signals); for a slot, it returns the slot's required outputs followed by ``returns``.
     ``key_params`` name the parameters that set the effect's strength (diagnosis estimates
-    them; default: the first). A slot effect that ``refines`` another adds physics to it (the
+    them; default: the first). ``shape_params`` name parameters that change the form of what
+    the effect does, not its size, with values a diagnosis tries beside its strength (a
+    pack's thermal time constant). A slot effect that ``refines`` another adds physics to it (the
     same slot, more detail): diagnosis offers it as a missing effect where the simpler one
     fills the slot. ``label`` names the physics in words for reports ("cabin heating and
     cooling"; default: the name). ``handles`` offer parameters to controllers by the names of
@@ -301,6 +305,7 @@ def effect(
             inputs=tuple(inputs),
             drivers=tuple(drivers),
             key_params=tuple(key_params),
+            shape_params={k: tuple(float(x) for x in v) for k, v in (shape_params or {}).items()},
             refines=refines,
             label=label,
             doc=inspect.getdoc(function) or "",

@@ -251,6 +251,10 @@ ambient_battery = register(Effect(
                   lambda p, x: x.get("ambient_degc", 20.0) + p["initial_offset_k"]),),
     drivers=("ambient_degc",),
     key_params=("initial_offset_k",),
+    # how fast the pack follows the air and warms by its losses sets the form of its
+    # resistance over a day: C / hA of a pack in its enclosure, from a ventilated one's
+    # hour and a half to a still one's half a day
+    shape_params={"time_constant_h": (1.5, 6.0, 12.0)},
     refines="managed_temperature",
     label="cold battery resistance",
     doc="""A pack without thermal management: it follows the ambient, warmed by its losses.
