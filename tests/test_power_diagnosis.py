@@ -469,7 +469,7 @@ def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_the
         case, profiles, day_of = rising_pack(tmp_path, rise)
         model = hidden.baseline_bus(case).build(hidden.DT_S)
         own = model.params[model.param_index("rint_battery.cell_resistance_mohm")]
-        check = voltage_evidence(model, profiles, model.params, [], day_of)
+        check, _ = voltage_evidence(model, profiles, model.params, [], day_of)
         if rise == 0.0:
             assert check.step is None
             continue
