@@ -454,14 +454,13 @@ def voltage_evidence(model, profiles, params, candidates, day_of: list[int],
                                             candidates, shapes=True)
     if check is not None:
         check.step = day_step(check, windows, profiles, day_of)
-    moved = 0.0
-    c = next((c for c in candidates if named and c.name == named[0]), None)
-    if check is not None and named and c is not None and c.strength_param in named[1]:
-        row, _ = strength_rows(c.model, c.params, c.strength_param,
-                               [named[1][c.strength_param]])
-        ln = predicted_ln_ratios(check, c.model, row[0], profiles, anchored, windows, usable)
-        moved = float(np.nanmax(ln) - np.nanmin(ln)) if np.isfinite(ln).any() else 0.0
-    return check, moved
+    effect, values = named or (None, {})
+    c = next((c for c in candidates if c.name == effect), None)
+    if check is None or c is None or c.strength_param not in values:
+        return check, 0.0
+    row, _ = strength_rows(c.model, c.params, c.strength_param, [values[c.strength_param]])
+    ln = predicted_ln_ratios(check, c.model, row[0], profiles, anchored, windows, usable)
+    return check, float(np.nanmax(ln) - np.nanmin(ln)) if np.isfinite(ln).any() else 0.0
 
 
 @dataclass
