@@ -2,7 +2,7 @@
 day's hidden effect against the truth source's own signatures, every bus-to-bus parameter free.
 
     python -m benchmarks.ceiling [--source truthsim] [--per-effect N] [--controls M] [--smoke]
-        [--cache DIR] [--rows FILE] [--workers 2]
+        [--cache DIR] [--rows FILE] [--workers 2] [--effect E] [--charger-share]
 
 For a day of the bench the truth source itself is run again (its own simulator: the truth
 simulator, the backward model or FASTSim):
@@ -14,7 +14,10 @@ simulator, the backward model or FASTSim):
 * a **sensitivity** per bus-to-bus parameter: the day with the parameter 5 % higher (an
   efficiency 5 % lower) less ``y_0`` (finite differences of the source itself: curb mass,
   rolling and air resistance, drivetrain losses, base auxiliaries, pack capacity and
-  resistance);
+  resistance); with ``--charger-share`` also the share of its stated rating a charger
+  delivers (the plan's charger power 5 % lower), which the power-domain diagnosis fits (a
+  log's rating may be the grid side's): a load that runs only while a charger gives its
+  rating is then a charger short of it;
 * the log's own nuisances: on a BMS log the current sensor's gain (``y_0`` itself) and
   offset (the terminal voltage: offset x V); on a SoC log the BMS's capacity error (``y_0``'s
   SoC change), the current offset's drift (a constant SoC change per window) and its count of
@@ -31,7 +34,10 @@ autocorrelation consistent, Bartlett kernel, 4 lags: W. K. Newey, K. D. West, Ec
 Per day it reports the hidden effect's **SNR** (its coefficient over its standard error,
 signed: an effect acts with a positive strength) and whether it is **separable**: SNR >= 3
 and its fit better than every other candidate's by more than 9 (3 sigma) in the residual sum
-of squares over the residual variance, inflated by the autocorrelation (``SEPARATION``). On
+of squares over the residual variance, inflated by the autocorrelation (``SEPARATION``), and
+the **fall**: the share of the residual sum of squares the bus's parameters leave that the
+hidden effect's own signature removes (the most an error can fall with the effect added in
+its true form). On
 a control day: the largest SNR of any candidate (what a diagnosis would have to refuse). Per
 effect, log type and source, the share of days that are separable is the ceiling that the
 diagnosis's bars are compared with. Single days only: the multi-day buses are not read here.
@@ -186,8 +192,9 @@ def fit(y: np.ndarray, basis: np.ndarray, signature: np.ndarray) -> dict:
 
 
 def ceiling_day(job) -> dict:
-    """A day's SNR of its hidden effect and its separability, on both log types."""
-    name, case, cache = job
+    """A day's SNR of its hidden effect and its separability, on both log types. ``job``:
+    (source name, case, cache folder or None[, the charger's delivered share free])."""
+    name, case, cache, charger_share = (*job, False)[:4]
     t0 = time.perf_counter()
     source = Source(name)
     plan, base, ph, day, _ = source.module.day_trace(case)
@@ -210,6 +217,10 @@ def ceiling_day(job) -> dict:
             if key in moved:
                 moved[key] = moved[key] * (1.0 + step)
         sensitivities[param] = source.run(plan, moved, None, {}, day)
+    if charger_share and plan["charger_kw"].max() > 0:  # a charger short of its rating
+        short = plan.copy()
+        short["charger_kw"] = plan["charger_kw"] * (1.0 - STEP)
+        sensitivities["charger_share"] = source.run(short, base, None, {}, day)
     measured = {"bms": (log["battery_current_a"] * log["battery_voltage_v"]).to_numpy(float),
                 "soc": log["soc_pct"].to_numpy(float) / 100.0}
     row = {"source": name, "case": case.case_id, "hidden": case.hidden,
@@ -227,12 +238,16 @@ def ceiling_day(job) -> dict:
             nuisance[1] = windows(y0["volts_v"].to_numpy()[:n], width, False)
         else:  # the BMS counts charge without the cells' coulombic efficiency
             nuisance.append(windows(y0["charged_as"].to_numpy()[:n], width, True))
-        basis = np.column_stack([signal(r) - base_signal for r in sensitivities.values()]
-                                + nuisance)
+        floor = 1e-9 * max(np.abs(base_signal).max(), 1.0)  # a run's rounding, not a change
+        moved = [signal(r) - base_signal for r in sensitivities.values()]
+        basis = np.column_stack([m for m in moved if np.abs(m).max() > floor] + nuisance)
+        scaled = basis / np.maximum(np.abs(basis).max(axis=0), 1e-12)
+        coef, *_ = np.linalg.lstsq(scaled, y, rcond=None)
+        rss_bus = float(np.sum((y - scaled @ coef) ** 2))  # the bus's parameters alone
         fits = {}
         for effect, run in candidates.items():
             sig = signal(run) - base_signal
-            if np.abs(sig).max() > 1e-9 * max(np.abs(base_signal).max(), 1.0):
+            if np.abs(sig).max() > floor:
                 fits[effect] = fit(y, basis, sig)
         own = fits.get(case.hidden)
         others = {e: f for e, f in fits.items() if e != case.hidden}
@@ -243,6 +258,7 @@ def ceiling_day(job) -> dict:
             margin = min(((f["rss"] - own["rss"]) / (own["sigma2"] * own["inflation"])
                           for f in others.values()), default=np.inf)
             result.update(snr=own["snr"], margin=float(margin),
+                          fall=float(1.0 - own["rss"] / rss_bus) if rss_bus > 0 else 0.0,
                           separable=bool(own["snr"] >= SNR_MIN and margin >= SEPARATION))
         row[kind] = result
     row["time_s"] = time.perf_counter() - t0
@@ -289,9 +305,11 @@ def report(rows: list[dict]) -> None:
                     continue
                 snrs = [s["snr"] for s in scored]
                 separable = sum(s["separable"] for s in scored)
+                falls = [s["fall"] for s in scored if "fall" in s]
                 print(f"  {name:9s} {kind:4s} {hidden:18s} {len(scored):5d} "
                       f"{100 * separable / len(scored):9.0f} % {np.median(snrs):11.1f} "
-                      f"({min(snrs):6.1f}, {max(snrs):6.1f})")
+                      f"({min(snrs):6.1f}, {max(snrs):6.1f})"
+                      + (f"  fall {100 * np.median(falls):.0f} %" if falls else ""))
             library = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
             if library:
                 share = sum(s["separable"] for s in library) / len(library)
@@ -313,6 +331,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="the bench's folder of generated days (read where there)")
     parser.add_argument("--rows", type=Path, default=None, help="write each day's row (JSON)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--charger-share", action="store_true",
+                        help="free the share of its rating a charger delivers, as the "
+                             "power-domain diagnosis does")
     parser.add_argument("--effect", action="append", default=[],
                         help="only the days hiding this effect (and --controls control days)")
     args = parser.parse_args(argv)
@@ -324,7 +345,7 @@ def main(argv: list[str] | None = None) -> None:
         except ImportError as exc:
             print(f"  {name} not available ({exc}): skipped")
             continue
-        jobs += [(name, c, str(args.cache) if args.cache else None)
+        jobs += [(name, c, str(args.cache) if args.cache else None, args.charger_share)
                  for c in cases_of(source, args.smoke, per_effect, controls, tuple(args.effect))]
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:

@@ -49,19 +49,24 @@ def test_the_fit_finds_a_signature_the_basis_cannot_make_and_not_one_it_can():
 
 @pytest.mark.slow
 def test_a_grade_day_is_separable_on_its_bms_log_and_a_control_day_has_no_effect():
-    """The truth simulator's first grade day and control day, their last hour: the grade's
-    SNR on the BMS log is far above 3 and it beats every other candidate; on the control day
-    no candidate reaches 3 on either log."""
+    """The truth simulator's first grade day, its last hour: the grade's SNR on the BMS log
+    is far above 3, it beats every other candidate and removes most of the missing power
+    the bus's parameters leave; the SoC log's 12 windows are too few for every parameter
+    free, so nothing is claimed. Its first control day, its last 3 h (the smoke days'): no
+    candidate reaches 3 on either log. The truth simulator's pack power does not move with
+    its capacity or resistance (the drive asks for a power): those sensitivities are
+    rounding, left out of the basis rather than fitted as noise."""
     source = ceiling.Source("truthsim")
     listed = ceiling.cases_of(source, False, 1, 1)
     grade = next(c for c in listed if c.hidden == "road_grade")
     control = next(c for c in listed if c.hidden is None)
-    cut = [dataclasses.replace(c, start_clock_h=c.start_clock_h + c.hours - 1.0, hours=1.0)
-           for c in (grade, control)]
-    graded = ceiling.ceiling_day(("truthsim", cut[0], None))
+    graded = ceiling.ceiling_day(("truthsim", dataclasses.replace(
+        grade, start_clock_h=grade.start_clock_h + grade.hours - 1.0, hours=1.0), None))
     assert graded["bms"]["separable"] and graded["bms"]["snr"] > 30.0
-    quiet = ceiling.ceiling_day(("truthsim", cut[1], None))
-    assert "snr" not in quiet["bms"] and quiet["bms"]["max_other_snr"] < 3.0
-    # an hour is 12 SoC windows: too few for every parameter free, so nothing is claimed
-    assert quiet["soc"]["windows"] == 12 and quiet["soc"]["max_other_snr"] == 0.0
-    assert "snr" not in graded["soc"]
+    assert 0.5 < graded["bms"]["fall"] <= 1.0
+    assert graded["soc"]["windows"] == 12 and "snr" not in graded["soc"]
+    quiet = ceiling.ceiling_day(("truthsim", dataclasses.replace(
+        control, start_clock_h=control.start_clock_h + control.hours - ceiling.SMOKE_HOURS,
+        hours=ceiling.SMOKE_HOURS), None))
+    for kind in ("bms", "soc"):
+        assert "snr" not in quiet[kind] and quiet[kind]["max_other_snr"] < 3.0, quiet
