@@ -264,7 +264,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
     case's day and ``days - 1`` more days of the same bus
     (:func:`~benchmarks.truth.cases.same_bus_case`) are diagnosed together, as one bus's
     logs."""
-    from ebus_env.diagnostics.ladder import as_effect, error_ladder, split_blocks
+    from ebus_env.diagnostics.ladder import error_ladder, split_blocks
 
     if isinstance(job, Job):
         source, case, folder, current_voltage = job.source, job.item, job.folder, job.log == "bms"
@@ -302,9 +302,8 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
              else expected)
     # a BMS log in the power domain: second by second
     power = isinstance(job, Job) and job.domain == "power" and current_voltage and not reference
-    if power:  # the bus fitted to the logged power; each candidate's held-out fall with it
-        d = diagnose(bus, profiles, add=[added] if ladder and added else (), freedom=freedom,
-                     domain="power")
+    if power:  # the bus fitted to the logged power; each library candidate's held-out fall
+        d = diagnose(bus, profiles, freedom=freedom, domain="power")
     else:
         d = diagnose(bus, profiles, calibrate=True, reference=reference or None,
                      freedom=freedom)
@@ -317,8 +316,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            "days": days, "time_s": time.perf_counter() - t0,
            "hours": sum(p.duration_s for p in profiles) / 3600.0, "added": added}
     if ladder and added and power:  # the held-out missing power's fall
-        falls = d.nrmse.get("power_held_out_fall", {})
-        row["fall"] = falls.get(as_effect(added).name)
+        row["fall"] = power_fall(d, bus, profiles, added, freedom)
     elif ladder and added:
         rungs = error_ladder(bus, profiles, [added], profiles[0].dt_s,
                              first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
@@ -332,6 +330,21 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
         row["added_values"] = {k: v for k, v in rungs[-1].values.items()
                                if k.split(".")[0] == rungs[-1].effects[-1]}
     return row
+
+
+def power_fall(d, bus, profiles, added, freedom) -> float | None:
+    """The share of the held-out missing power ``added`` removes on a BMS log read second by
+    second: a library effect's from the diagnosis ``d`` itself (it tests every library effect
+    beside the bus's parameters); a user's effect from a second diagnosis with it added (the
+    verdict stays ``d``'s, made without knowing the effect)."""
+    from ebus_env.diagnostics.ladder import as_effect
+
+    effect = as_effect(added)
+    falls = d.nrmse.get("power_held_out_fall", {})
+    if effect.name not in falls and not effect.builtin:
+        falls = diagnose(bus, profiles, add=[added], freedom=freedom,
+                         domain="power").nrmse.get("power_held_out_fall", {})
+    return falls.get(effect.name)
 
 
 def _index(case_id: str) -> int:
