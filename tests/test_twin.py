@@ -380,6 +380,72 @@ def test_the_ambient_ahead_is_the_day_before_moved_to_now_and_read_once(tmp_path
     assert np.all(ambient_ahead(twin, "b", T0 + 3 * 86400.0, 600, now_degc=7.0) == 7.0)
 
 
+def depot_top_up_days(settings, params: dict, days: int, hours: float = 7.0
+                      ) -> list[pd.DataFrame]:
+    """``days`` service days of a bus made by the twin's model with ``params``, one a day from
+    :data:`T0` on, as its logger sends them: 25-minute top-ups at the configured bus's depot
+    charger every two hours of driving (shorter than the twin's end of a day), the charger's
+    rating in the log, the SoC in 0.1 % steps."""
+    from dataclasses import replace
+
+    from ebus_env.config import load_bus
+    from ebus_env.cycles import service_day
+    from ebus_env.synthetic import synthetic_log
+    from ebus_env.twin.bus_refit import bus_model
+
+    model = bus_model(settings.bus_config, settings.dt_s)
+    service = load_bus(settings.bus_config).service
+    service = replace(service, layover_every_min=120.0, layover_min=25.0,
+                      layover_charger_kw=service.depot_charger_kw, charge_at_layovers=True)
+    frames = []
+    for k in range(days):
+        day = service_day("sort2", hours, model.dt_s, service)
+        day = day.with_channels(ambient_degc=np.linspace(8.0 + k, 14.0 + k, day.n_steps))
+        log = synthetic_log(model, day, params, soc_start=0.75, seed=k)
+        frames.append(log[["speed_kmh", "soc_pct", "ambient_degc", "charging", "charger_kw"]]
+                      .assign(t=T0 + 86400.0 * k + log["time_s"]))
+    return frames
+
+
+@pytest.mark.slow
+def test_the_cross_day_fit_finds_the_share_of_its_rating_a_charger_delivers(tmp_path):
+    """The rating a bus's logs give for its depot charger is the grid side's: the charger
+    delivers 93 % of it, and the bus's pack holds 92 % of the configured one. Its three
+    finished days' cross-day fit finds the share to 0.02 and the pack's capacity (its cells'
+    less the fade: on SoC data the two trade one for the other) to 1 %; held at all of the
+    rating, the fit makes the SoC's slower rise a bigger pack and misses the capacity by more
+    than twice as much."""
+    from ebus_env.calibration.problem import CHARGER_SHARE
+    from ebus_env.twin import bus_refit
+    from ebus_env.twin.closed_days import close_days
+    from ebus_env.twin.jobs import JobSettings
+
+    settings = JobSettings(diagnose=False)
+    cells_ah = "rint_battery.cell_capacity_ah"
+    truth = {CHARGER_SHARE: 0.93, cells_ah: 92.0}
+    twin = Twin(open_store(tmp_path / "t.sqlite"))
+    create(twin.store, fleet="demo", bus="bus-01")
+    for frame in depot_top_up_days(settings, truth, 4):
+        twin.ingest("bus-01", frame)
+    days = close_days(twin, "bus-01", settings)
+    assert days == ["2025-05-05", "2025-05-06", "2025-05-07"]  # the fourth is still open
+    shared = bus_refit.cross_day_fit(twin, "bus-01", days[-1], settings)["values"]
+    frames = [twin.samples("bus-01", T0 + 86400.0 * k, T0 + 86400.0 * (k + 1) - 1.0)
+              for k in range(3)]
+    # the same first fit of the same days, the share held at all of the rating
+    held_free = tuple(n for n in bus_refit.CROSS_DAY_FREE if n != CHARGER_SHARE)
+    held = bus_refit.fit_task(frames, held_free, {}, False, settings.bus_config,
+                              settings.dt_s)["values"]
+
+    def capacity_error(values: dict) -> float:
+        return abs(values[cells_ah] * (1.0 - values["static_rcd.rcd_frac"]) / truth[cells_ah]
+                   - 1.0)
+
+    assert shared.get(CHARGER_SHARE) == pytest.approx(truth[CHARGER_SHARE], abs=0.02), shared
+    assert capacity_error(shared) < 0.01, shared
+    assert capacity_error(held) > 2.0 * capacity_error(shared), held
+
+
 def _held_by_another_writer(path):
     """An SQLite connection of another process's kind holding the write lock (BEGIN
     IMMEDIATE) until it commits: the twin's writer waits on it."""
