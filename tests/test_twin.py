@@ -104,6 +104,34 @@ def test_a_late_batch_falls_in_a_closed_day_and_says_so(service):
     assert "diagnosed again" in late.json()["notes"][0]
 
 
+def test_a_bus_back_on_the_same_date_after_a_long_stand_extends_that_day(service):
+    """A midday depot stand longer than the day's end rule closes the morning; when the bus
+    drives again that date, the day grows to take in the afternoon (to be fitted and
+    diagnosed again over all of it), and none of its samples is left outside a day."""
+    twin, client, tok, _, _ = service
+    from ebus_env.twin.closed_days import close_days
+    from ebus_env.twin.jobs import JobSettings
+    from ebus_env.twin.store import service_days
+
+    day_end = JobSettings(day_end_idle_min=30.0)
+
+    def shift(t0: float) -> list[dict]:  # 10 min of driving, then 40 min standing
+        return samples(600, t0) + [{"t": t0 + 600 + i, "speed_kmh": 0.0, "soc_pct": 80.0}
+                                   for i in range(0, 2400, 10)]
+
+    client.post("/v1/buses/bus-01/samples", headers=auth(tok["w1"]), json={"samples": shift(T0)})
+    assert close_days(twin, "bus-01", day_end) == ["2025-05-05"]
+    afternoon = T0 + 6 * 3600.0
+    client.post("/v1/buses/bus-01/samples", headers=auth(tok["w1"]),
+                json={"samples": shift(afternoon)})
+    assert close_days(twin, "bus-01", day_end) == ["2025-05-05"]
+    with twin.store.engine.connect() as conn:
+        (day,) = conn.execute(service_days.select()).all()
+    assert day.state == "finished" and day.t_start <= T0
+    assert day.t_end >= afternoon + 599  # the afternoon's driving is in the day
+    assert close_days(twin, "bus-01", day_end) == []  # and nothing is left to close
+
+
 @pytest.mark.parametrize("body, field, row, status", [
     ({"samples": [{"t": T0, "speed_kmh": 5}, {"t": T0 + 1, "speed_kmh": 5, "soc_pct": 101}]},
      "soc_pct", 2, 422),

@@ -5,7 +5,9 @@ A bus's samples are cut into service days by the depot's rule
 ``stay_h`` without moving, or without samples: a logger asleep at the depot) with the twin's
 ``day_end_idle_min`` as the stay: longer than any layover. A day is *finished* once a later day
 has begun, or once the bus has stood ``day_end_idle_min`` after its last move with its logger
-on. It is named by the UTC date of its first sample.
+on. It is named by the UTC date of its first sample; a bus that drives again on the same date
+after such a stand (a midday depot charge) extends that day, which is then fitted and
+diagnosed again over all of it.
 
 The bus's first finished day is its *normal day*: the diagnosis measures it once
 (:func:`reference_task`: its calibrated bus-to-bus values and the power its model misses per
@@ -66,11 +68,19 @@ def close_days(twin, bus: str, settings) -> list[str]:
     closed = []
     for a, b in finished_days(t, v, day_rule(settings.day_end_idle_min)):
         day = str(pd.Timestamp(a, unit="s").date())
+        key = (days_table.c.bus_id == bus_id) & (days_table.c.day == day)
         with twin.store.engine.begin() as conn:
-            conn.execute(twin.store.insert(days_table).values(
-                bus_id=bus_id, day=day, t_start=a, t_end=b, finished_at=twin.clock(),
-                state="finished").on_conflict_do_nothing())
-        closed.append(day)
+            known = conn.execute(sa.select(days_table.c.t_start).where(key)).first()
+            if known is None:
+                conn.execute(days_table.insert().values(
+                    bus_id=bus_id, day=day, t_start=a, t_end=b, finished_at=twin.clock(),
+                    state="finished"))
+            else:  # the bus came back on the same date after a long stand: the day grows
+                conn.execute(days_table.update().where(key).values(
+                    t_start=min(a, known.t_start), t_end=b, finished_at=twin.clock(),
+                    state="finished"))
+        if day not in closed:
+            closed.append(day)
     return closed
 
 
