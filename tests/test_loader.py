@@ -109,6 +109,15 @@ def test_gaps_error_split_hold_interpolate(tmp_path):
     assert np.all(held[inside] == held[inside][0])
 
 
+def test_a_segment_of_one_sample_between_gaps_is_named_not_simulated(tmp_path):
+    """Split at its gaps, a log whose last sample stands alone after a gap has a segment
+    with no time step: the error names it, its row and the gap policies that keep it."""
+    frame = good_frame()
+    frame.loc[len(frame) - 1, "time_s"] += 120.0
+    with pytest.raises(LogError, match=rf"Segments \[1\].*too short.*row {len(frame)}.*'hold'"):
+        load_log(write(tmp_path, frame), gaps="split")
+
+
 def test_speed_in_mps_written_as_kmh_is_caught(tmp_path):
     frame = good_frame()
     frame["speed_kmh"] = frame["speed_kmh"] / 3.6  # m/s values under a km/h name

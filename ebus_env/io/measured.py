@@ -687,16 +687,16 @@ def load_log(path: str | Path, dt_s: float = 0.1, columns: dict | str | None = N
             how = "holding the last sample" if gaps == "hold" else "linear interpolation"
             report.changes.append(f"{gap_rows.size} gap(s) ({listing}) bridged by {how}")
 
-    profiles = []
-    for a, b in segments:
-        profiles.append(_segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h,
-                                         start_date, gaps, limit, grade_window_m, report, path,
-                                         name))
-    if len(profiles) > 1:
-        short = [i for i, p in enumerate(profiles) if p.n_steps < 2]
+    if len(segments) > 1:  # a segment of one sample has no time step to simulate
+        short = [i for i, (a, b) in enumerate(segments)
+                 if b - a < 2 or len(grid(t[a], t[b - 1], dt_s)) < 2]
         if short:
-            raise LogError(f"Segments {short} are too short to simulate", path=path,
+            raise LogError(f"Segments {short} (between gaps) are too short to simulate",
+                           path=path, column="time_s", rows=[segments[i][0] + 1 for i in short],
                            fix="use gaps='hold' or 'interpolate' instead of 'split'")
+    profiles = [_segment_profile(values, speed_col, speed_mps, t, a, b, dt_s, start_h,
+                                 start_date, gaps, limit, grade_window_m, report, path, name)
+                for a, b in segments]
     _check_limits(profiles, max_speed_kmh, max_accel_mps2, report)
     for p in profiles:
         p.notes = list(report.changes)
