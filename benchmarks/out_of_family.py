@@ -315,8 +315,11 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
            **_verdict_row(d, truth, source, case.case_id, case.hidden, oracle),
            "days": days, "time_s": time.perf_counter() - t0,
            "hours": sum(p.duration_s for p in profiles) / 3600.0, "added": added}
-    if ladder and added and power:  # the held-out missing power's fall
-        row["fall"] = power_fall(d, bus, profiles, added, freedom)
+    if ladder and added and power:  # the held-out missing power's fall (none where the
+        # effect was set aside: its inputs do not move along the log)
+        fall = power_fall(d, bus, profiles, added, freedom)
+        if fall is not None:
+            row["fall"] = fall
     elif ladder and added:
         rungs = error_ladder(bus, profiles, [added], profiles[0].dt_s,
                              first=d.ladder[0], blocks=split_blocks(profiles), freedom=freedom)
