@@ -44,6 +44,7 @@ from ebus_env.diagnostics.power_path import (
     pack_resistance,
     scaled,
     separated,
+    strength_of,
 )
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log
@@ -183,6 +184,34 @@ def test_a_strength_that_only_scales_its_signature_is_read_from_the_fitted_size(
     bent = replace(form, signatures_w=np.array([shape * (1.0 + 0.5 * k * np.arange(4))
                                                 for k in range(len(grid))]))
     assert scaled(bent, 5, 0.3) is None and bound_reached(bent, 5, 0.3) == "upper"
+
+
+def test_an_effect_without_a_strength_has_an_energy_interval_that_reaches_its_own_size():
+    """A grade read from a noisy altitude: its signature is the true one plus noise of the
+    same size, so the fit's coefficient is about 0.5 (regression dilution) and its energy
+    half the truth's. The effect has no strength parameter: its energy's interval reaches
+    the energy of its own size and covers the truth; the estimate stays the fitted one. A
+    load with a scale keeps its interval."""
+    rng = np.random.default_rng(4)
+    n = 2400
+    true_w = 3e3 * np.sin(np.arange(n) / 40.0) + 1.5e3 * rng.normal(0.0, 1.0, n) + 400.0
+    noise_w = rng.normal(0.0, float(np.std(true_w - 400.0)), n)
+    seen_w = true_w + noise_w - noise_w.mean()  # an altitude error does not climb over a day
+    y = true_w + rng.normal(0.0, 100.0, n)
+    constant = Nuisance(["c"], np.ones((n, 1)), np.array([-1e4]), np.array([1e4]))
+    w, block = np.full(n, 1e-4), np.arange(n) // 100
+    grade = Form("road_grade", "missing effect", seen_w[None, :])
+    test = HeldOut(y, w, constant, block).test(grade.name, grade.signatures_w)
+    assert 0.35 < test.beta < 0.65
+    truth_kwh, fitted_kwh = (x * seen_w.sum() * 60.0 / 3.6e6 for x in (1.0, test.beta))
+    got = strength_of(test, grade, grade.signatures_w, y, w, constant, block, 60.0)
+    assert got["energy_kwh"] == pytest.approx(fitted_kwh)
+    low, high = got["energy_interval_kwh"]
+    assert low < fitted_kwh < truth_kwh < high
+    scaled_load = replace(grade, strengths=np.array([1.0]), strength_param="load.scale")
+    kept = strength_of(test, scaled_load, grade.signatures_w, y, w, constant, block, 60.0)
+    assert kept["energy_kwh"] == pytest.approx(fitted_kwh)
+    assert kept["energy_interval_kwh"][1] < truth_kwh  # the fit's own noise alone
 
 
 def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, plain: bool = False,
