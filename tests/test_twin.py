@@ -466,12 +466,45 @@ def test_the_cross_day_fit_finds_the_share_of_its_rating_a_charger_delivers(tmp_
                               settings.dt_s)["values"]
 
     def capacity_error(values: dict) -> float:
-        return abs(values[cells_ah] * (1.0 - values["static_rcd.rcd_frac"]) / truth[cells_ah]
-                   - 1.0)
+        return abs(values[cells_ah] * (1.0 - values.get("static_rcd.rcd_frac", 0.0))
+                   / truth[cells_ah] - 1.0)
 
     assert shared.get(CHARGER_SHARE) == pytest.approx(truth[CHARGER_SHARE], abs=0.02), shared
     assert capacity_error(shared) < 0.01, shared
     assert capacity_error(held) > 2.0 * capacity_error(shared), held
+
+
+@pytest.mark.slow
+def test_the_cross_day_fits_find_the_pack_first_and_its_fade_after(tmp_path):
+    """A bus whose pack holds 92 Ah cells loses 6 % of its capacity after its first three
+    days. Its first cross-day fit (a global search) finds the cells with the fade held; the
+    next, three days later, holds the cells and finds the fade: 6 % to 1.5 points, the
+    capacity to 1 %, so the bus page's fade history reads the pack's."""
+    from ebus_env.twin import bus_refit
+    from ebus_env.twin.closed_days import close_days
+    from ebus_env.twin.jobs import JobSettings
+
+    settings = JobSettings(diagnose=False)
+    cells_ah, fade = bus_refit.FADE
+    new, worn = {cells_ah: 92.0}, {cells_ah: 92.0, fade: 0.06}
+    frames = depot_top_up_days(settings, new, 3) + depot_top_up_days(settings, worn, 7)[3:]
+    twin = Twin(open_store(tmp_path / "t.sqlite"))
+    create(twin.store, fleet="demo", bus="bus-01")
+    for frame in frames[:4]:
+        twin.ingest("bus-01", frame)
+    first_days = close_days(twin, "bus-01", settings)
+    bus_refit.cross_day_fit(twin, "bus-01", first_days[-1], settings)
+    first = bus_refit.latest_values(twin, twin.bus_id("bus-01"))
+    assert first[cells_ah] == pytest.approx(92.0, rel=0.01) and first.get(fade, 0.0) == 0.0
+    for frame in frames[4:]:
+        twin.ingest("bus-01", frame)
+    later_days = close_days(twin, "bus-01", settings)
+    assert later_days[-1] == "2025-05-10"  # days 4-6 finished, the seventh open
+    bus_refit.cross_day_fit(twin, "bus-01", later_days[-1], settings)
+    later = bus_refit.latest_values(twin, twin.bus_id("bus-01"))
+    assert later[cells_ah] == first[cells_ah]  # held
+    assert later[fade] == pytest.approx(0.06, abs=0.015), later
+    assert later[cells_ah] * (1.0 - later[fade]) == pytest.approx(92.0 * 0.94, rel=0.01)
 
 
 def _held_by_another_writer(path):

@@ -10,7 +10,8 @@
   (:data:`CROSS_DAY_FREE`: the diagnosis's, :data:`ebus_env.diagnostics.ladder.NUISANCE`, in
   its search ranges, with the capacity fade and the pack's charge acceptance) are fitted on the
   bus's last ``cross_days`` finished days together: by a global iSOPT search the first time,
-  then by Levenberg-Marquardt from the bus's last values. Where the days' logs give the
+  then by Levenberg-Marquardt from the bus's last values (the first fit finds the pack's
+  cells, the later ones the fade since: :data:`FADE`). Where the days' logs give the
   charger's rating and the bus charges at it (:data:`MIN_RATED_SOC_PCT`), the share of it the
   charger delivers is fitted with them: a rating stated on the grid side delivers the
   charger's efficiency of it, and held at all of it the fit would bend the pack's capacity
@@ -58,6 +59,11 @@ CROSS_DAY_FREE = ("vehicle_body.curb_mass_kg", "rolling_resistance.rolling_coef"
 acceptance (its C-rate limit and where its CV taper starts) and the share of its stated
 rating the charger delivers (only where the days charge at a logged rating:
 :data:`MIN_RATED_SOC_PCT`)."""
+FADE = ("rint_battery.cell_capacity_ah", "static_rcd.rcd_frac")
+"""A pack's cells and its fade, which SoC data see only as their product Q (1 - RCD): the
+bus's first cross-day fit finds the cells as the pack is then (its fade held), each later fit
+holds them and finds the fade since (the bus page's capacity-fade history). Both free, any
+split of the product fits, and the history would wander with the search."""
 HISTORY = {"static_rcd.rcd_frac": "capacity fade (RCD)",
            "auxiliaries.base_power_w": "auxiliary base load",
            "rolling_resistance.rolling_coef": "rolling resistance",
@@ -201,6 +207,9 @@ def fit_task(frames: list[pd.DataFrame], free: tuple[str, ...], start: dict, loc
     if not profiles or sum(p.duration_s for p in profiles) < 3600.0:
         return None
     names = [n for n in (model.equivalent(f) for f in free) if n is not None]
+    cells, fade = (model.equivalent(n) for n in FADE)
+    if cells in names and fade in names:  # the first fit the cells, the later ones the fade
+        names.remove(cells if local else fade)
     bounds = {k: v for k, v in nuisance_ranges(model, profiles).items() if k in names}
     t0 = time.perf_counter()
     share = model.equivalent(CHARGER_SHARE)
