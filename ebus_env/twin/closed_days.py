@@ -70,14 +70,16 @@ def close_days(twin, bus: str, settings) -> list[str]:
         day = str(pd.Timestamp(a, unit="s").date())
         key = (days_table.c.bus_id == bus_id) & (days_table.c.day == day)
         with twin.store.engine.begin() as conn:
-            known = conn.execute(sa.select(days_table.c.t_start).where(key)).first()
+            known = conn.execute(sa.select(days_table.c.t_start, days_table.c.t_end)
+                                 .where(key)).first()
             if known is None:
                 conn.execute(days_table.insert().values(
                     bus_id=bus_id, day=day, t_start=a, t_end=b, finished_at=twin.clock(),
                     state="finished"))
             else:  # the bus came back on the same date after a long stand: the day grows
                 conn.execute(days_table.update().where(key).values(
-                    t_start=min(a, known.t_start), t_end=b, finished_at=twin.clock(),
+                    t_start=min(a, known.t_start), t_end=max(b, known.t_end),
+                    finished_at=twin.clock(),
                     state="finished"))
         if day not in closed:
             closed.append(day)
