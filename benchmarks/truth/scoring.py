@@ -69,10 +69,11 @@ def wrong(row: dict) -> bool:
 
 def fall_of(row: dict) -> float:
     """The held-out error fall after adding the right effect: on a BMS log the counted
-    charge's (the power residual's) where the ladder gives it, else the SoC NRMSE's."""
-    if log_of(row) == "bms" and "fall_charge" in row:
-        return row["fall_charge"]
-    return row.get("fall", float("nan"))
+    charge's (the power residual's) where the ladder gives it, else the SoC NRMSE's; NaN
+    where none was measured."""
+    fall = row.get("fall_charge") if log_of(row) == "bms" and "fall_charge" in row \
+        else row.get("fall")
+    return float("nan") if fall is None else fall
 
 
 def confusion(rows, title: str = "") -> None:
