@@ -53,9 +53,7 @@ def test_a_grade_day_is_separable_on_its_bms_log_and_a_control_day_has_no_effect
     is far above 3, it beats every other candidate and removes most of the missing power
     the bus's parameters leave; the SoC log's 12 windows are too few for every parameter
     free, so nothing is claimed. Its first control day, its last 3 h (the smoke days'): no
-    candidate reaches 3 on either log. The truth simulator's pack power does not move with
-    its capacity or resistance (the drive asks for a power): those sensitivities are
-    rounding, left out of the basis rather than fitted as noise."""
+    candidate reaches 3 on either log."""
     source = ceiling.Source("truthsim")
     listed = ceiling.cases_of(source, False, 1, 1)
     grade = next(c for c in listed if c.hidden == "road_grade")
