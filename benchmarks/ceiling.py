@@ -159,6 +159,13 @@ beside the base auxiliaries on a day, say) cannot be told from the bus's own par
 SNR is 0."""
 
 
+def basis_residual(y: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """What of ``y`` the basis (its columns scaled to 1 for the conditioning) leaves."""
+    scaled = basis / np.maximum(np.abs(basis).max(axis=0), 1e-12)
+    coef, *_ = np.linalg.lstsq(scaled, y, rcond=None)
+    return y - scaled @ coef
+
+
 def fit(y: np.ndarray, basis: np.ndarray, signature: np.ndarray) -> dict:
     """Least squares of ``y`` on the basis (sensitivities and nuisances) and one signature:
     the signature's coefficient, its Newey-West standard error, the residual sum of squares,
@@ -171,8 +178,7 @@ def fit(y: np.ndarray, basis: np.ndarray, signature: np.ndarray) -> dict:
     inside, *_ = np.linalg.lstsq(basis / b_scale, signature, rcond=None)
     outside = signature - (basis / b_scale) @ inside
     if np.linalg.norm(outside) < IDENTIFIABLE * np.linalg.norm(signature):
-        coef, *_ = np.linalg.lstsq(basis / b_scale, y, rcond=None)
-        resid = y - (basis / b_scale) @ coef
+        resid = basis_residual(y, basis)
         dof = max(len(y) - basis.shape[1], 1)
         return {"snr": 0.0, "rss": float(resid @ resid), "sigma2": float(resid @ resid / dof),
                 "inflation": 1.0}
@@ -241,9 +247,7 @@ def ceiling_day(job) -> dict:
         floor = 1e-9 * max(np.abs(base_signal).max(), 1.0)  # a run's rounding, not a change
         moved = [signal(r) - base_signal for r in sensitivities.values()]
         basis = np.column_stack([m for m in moved if np.abs(m).max() > floor] + nuisance)
-        scaled = basis / np.maximum(np.abs(basis).max(axis=0), 1e-12)
-        coef, *_ = np.linalg.lstsq(scaled, y, rcond=None)
-        rss_bus = float(np.sum((y - scaled @ coef) ** 2))  # the bus's parameters alone
+        rss_bus = float(np.sum(basis_residual(y, basis) ** 2))  # the bus's parameters alone
         fits = {}
         for effect, run in candidates.items():
             sig = signal(run) - base_signal
