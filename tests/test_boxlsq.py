@@ -102,3 +102,22 @@ def test_a_fit_the_active_set_cannot_finish_goes_to_bvls(monkeypatch):
     monkeypatch.setattr(boxlsq, "_active_set", lambda gram, h, *_: (np.zeros_like(h), -h))
     x, _ = boxlsq.bounded_lstsq(a, b, low, high)
     np.testing.assert_allclose(x, _bvls_x(a, b, low, high), rtol=1e-12)
+
+
+def test_bvls_on_the_r_factor_finds_the_full_problems_minimum():
+    """A day's seconds by a few columns, two of them nearly collinear, bounds that bind: BVLS
+    on the R factor reaches the minimum of BVLS on the whole tall matrix."""
+    rng = np.random.default_rng(8)
+    for trial in range(20):
+        n, k = int(rng.integers(200, 5000)), int(rng.integers(2, 12))
+        a = rng.normal(size=(n, k)) * rng.uniform(0.1, 1e3, k)
+        a[:, 1] = a[:, 0] * 0.99 + 0.01 * a[:, 1]
+        b = a @ rng.normal(0, 3, k) + rng.normal(0, 1, n) * a.std()
+        low = np.where(rng.random(k) < 0.5, 0.0, -np.inf)
+        high = np.where(rng.random(k) < 0.3, 0.5, np.inf)
+        ref = _bvls_x(a, b, low, high)
+        x = boxlsq.bvls(a, b, low, high)
+        assert np.all(x >= low) and np.all(x <= high)
+        cost, best = np.sum((a @ x - b) ** 2), np.sum((a @ ref - b) ** 2)
+        assert cost == pytest.approx(best, rel=1e-9), trial
+        np.testing.assert_allclose(x, ref, rtol=1e-5, atol=1e-7 * np.abs(ref).max())

@@ -15,7 +15,8 @@ program, and a point is its minimum exactly when it satisfies the Karush-Kuhn-Tu
 nearly every draw: each residual's active set, taken from its unit-weight fit, starts
 primal-dual active-set iterations over all draws at once (batched linear solves), and a draw's
 solution is kept only where the conditions hold; the rest go to bounded-variable least squares
-(scipy's BVLS, Stark & Parker 1995, Comput. Stat. 10, 129-141).
+(scipy's BVLS, Stark & Parker 1995, Comput. Stat. 10, 129-141), on the problem's R factor
+(:func:`bvls`).
 """
 
 from __future__ import annotations
@@ -26,10 +27,21 @@ from scipy.optimize import lsq_linear
 KKT_TOL = 1e-9  # of the gradient's scale: a condition this close holds
 
 
+def bvls(a: np.ndarray, b: np.ndarray, low, high) -> np.ndarray:
+    """min ||a x - b|| with low <= x <= high by BVLS. A tall ``a`` (windows or seconds by a few
+    columns) is first reduced to its R factor: with [a b] = Q [R z], ||a x - b||^2 = ||R x -
+    z||^2 for every x (Q is orthonormal), so the bounded minimum is the same while each of
+    BVLS's inner least-squares solves is (columns + 1) rows long, not (windows) rows."""
+    if a.shape[0] > 2 * (a.shape[1] + 1):
+        rz = np.linalg.qr(np.column_stack([a, b]), mode="r")
+        a, b = rz[:, :-1], rz[:, -1]
+    return lsq_linear(a, b, bounds=(low, high), method="bvls").x
+
+
 def _bvls(a: np.ndarray, r: np.ndarray, c: np.ndarray, bound: float) -> float:
     """The weighted SSE of one fit by BVLS (the exact reference)."""
     root = np.sqrt(c)
-    x = lsq_linear(a * root[:, None], r * root, bounds=(-bound, bound), method="bvls").x
+    x = bvls(a * root[:, None], r * root, -bound, bound)
     rr = r - a @ x
     return float(c @ (rr * rr))
 
@@ -50,7 +62,7 @@ def refit_sse(a: np.ndarray, residuals: np.ndarray, counts: np.ndarray,
     diag = np.maximum(np.einsum("dii->di", gram), 1e-300)
     scale = KKT_TOL * (np.abs(cross).max(axis=(1, 2)) + np.abs(gram).max(axis=(1, 2)) * bound)
     for g, r in enumerate(residuals):
-        x0 = lsq_linear(a, r, bounds=(-bound, bound), method="bvls").x
+        x0 = bvls(a, r, -bound, bound)
         side = np.where(np.abs(x0) >= bound * (1 - 1e-9), np.sign(x0), 0.0)
         x, grad = _active_set(gram, cross[:, g, :], diag, np.broadcast_to(
             side, (len(counts), n)).copy(), -bound, bound)
@@ -98,7 +110,7 @@ def bounded_lstsq(a: np.ndarray, b: np.ndarray, low: np.ndarray, high: np.ndarra
     if x is None or not _kkt(x[None], grad[None], low, high, KKT_TOL * (
             np.abs(h).max(initial=0.0) + np.abs(gram).max(initial=0.0)
             * np.abs(x).max(initial=1.0)))[0]:
-        x = lsq_linear(a, b, bounds=(low, high), method="bvls").x
+        x = bvls(a, b, low, high)
     return x, np.where(x >= high, 1.0, np.where(x <= low, -1.0, 0.0))
 
 
