@@ -519,6 +519,65 @@ def test_a_pack_whose_resistance_rises_from_a_day_on_is_named_as_ageing_from_the
         assert low < rise / 1.5 < high
 
 
+def _pack_candidate(bus, model):
+    """ambient_battery (the library effect that moves the pack's resistance) as a candidate
+    of ``bus``, for the voltage's check."""
+    from ebus_env.diagnostics.candidates import GRID, Candidate, model_with
+    from ebus_env.effects.base import get_effect
+
+    eff = get_effect("ambient_battery")
+    values = dict(zip(model.param_names, model.params, strict=True))
+    m, params = model_with(bus.with_effect(eff), hidden.DT_S, values)
+    i = m.param_index("ambient_battery.initial_offset_k")
+    return Candidate("ambient_battery", "missing effect", np.zeros((1, 0)), effect=eff,
+                     model=m, params=params, strengths=np.linspace(*m.bounds[i], GRID))
+
+
+@pytest.mark.slow
+def test_a_pack_effect_the_power_names_stands_only_where_the_voltage_reproduces_the_change(
+        tmp_path):
+    """Four two-hour days whose cells' resistance is 25 % higher from the third day on: the
+    voltage shows the rise, flat within each day, which a pack off its ambient reproduces at
+    no strength, so that verdict from the power is withdrawn with the reason (and the rise is
+    then the library's ageing from its day). On the cold-battery day, whose resistance falls
+    as the pack warms by its losses, the same verdict stands."""
+    from ebus_env.diagnostics.power_path import (
+        MIN_REPRODUCED,
+        Finding,
+        unreproduced_pack_why,
+        voltage_evidence,
+    )
+
+    def finding():
+        return Finding("named", "ambient_battery", "", 0, (0, 0), None, [], {}, 0.0,
+                       strength={"parameters": {"ambient_battery.initial_offset_k": -10.0}},
+                       fall=0.3)
+
+    case, profiles, day_of = rising_pack(tmp_path, 0.25, hours=2.0)
+    bus = hidden.baseline_bus(case)
+    model = bus.build(hidden.DT_S)
+    pack = [_pack_candidate(bus, model)]
+    named = ("ambient_battery", {"ambient_battery.initial_offset_k": -10.0})
+    check, moved = voltage_evidence(model, profiles, model.params, pack, day_of, named)
+    assert check.changes and check.step.since_day == 2 and moved > 0.05
+    fit = next(f for f in check.explained_by if f.effect == "ambient_battery")
+    assert fit.explained < MIN_REPRODUCED
+    why = unreproduced_pack_why(finding(), check)
+    assert "does not reproduce" in why and f"{100 * max(fit.explained, 0):.0f} %" in why
+
+    cold = hidden.case("cold_battery")
+    profile, _ = hidden.day_profile(cold)
+    frame = synthetic_log(hidden.true_bus(cold).build(hidden.DT_S), profile,
+                          soc_start=cold.soc_start, period_s=1.0, soc_step_pct=0.1,
+                          soc_noise_pct=0.02, seed=1)
+    bus = hidden.baseline_bus(cold)
+    model = bus.build(hidden.DT_S)
+    check, _ = voltage_evidence(model, load(frame, tmp_path, "cold"), model.params,
+                                [_pack_candidate(bus, model)], [0], named)
+    assert check.changes and check.explained_by[0].explained > 0.9
+    assert unreproduced_pack_why(finding(), check) == ""
+
+
 @pytest.mark.slow
 def test_in_soc_windows_too_a_resistance_rise_names_ageing_from_its_day(tmp_path):
     """The same four days diagnosed in SoC windows (the default domain): the missing power
