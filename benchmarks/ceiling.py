@@ -3,6 +3,7 @@ day's hidden effect against the truth source's own signatures, every bus-to-bus 
 
     python -m benchmarks.ceiling [--source truthsim] [--per-effect N] [--controls M] [--smoke]
         [--cache DIR] [--rows FILE] [--workers 2] [--effect E] [--charger-share]
+    python -m benchmarks.ceiling --from-rows FILE [--from-rows FILE2 ...]   # report, run nothing
 
 For a day of the bench the truth source itself is run again (its own simulator: the truth
 simulator, the backward model or FASTSim):
@@ -24,8 +25,11 @@ simulator, the backward model or FASTSim):
   charge without the cells' coulombic efficiency (the charge put in per window).
 
 What is fitted is what the log shows: on a BMS log the pack power ``I x V`` from the logged
-current and voltage, as 60 s means; on a SoC-only log the logged SoC's change over each 5-min
-window (a difference: the BMS's slow drift becomes a constant per window). The measured
+current and voltage, as 60 s means, and apart from it the logged voltage itself (``volt``: a
+pack effect may move the voltage and hardly the power, where the drive asks for a power), with
+the voltage sensor's gain and offset as its nuisances; on a SoC-only log the logged SoC's
+change over each 5-min window (a difference: the BMS's slow drift becomes a constant per
+window). The measured
 signal less ``y_0`` is fitted by least squares with all sensitivities and nuisances free and
 one candidate at a time; the standard errors are Newey-West's (heteroskedasticity and
 autocorrelation consistent, Bartlett kernel, 4 lags: W. K. Newey, K. D. West, Econometrica
@@ -40,7 +44,8 @@ hidden effect's own signature removes (the most an error can fall with the effec
 its true form). On
 a control day: the largest SNR of any candidate (what a diagnosis would have to refuse). Per
 effect, log type and source, the share of days that are separable is the ceiling that the
-diagnosis's bars are compared with. Single days only: the multi-day buses are not read here.
+diagnosis's bars are compared with; a BMS log holds an effect separable in its power or its
+voltage. Single days only: the multi-day buses are not read here.
 """
 
 from __future__ import annotations
@@ -56,9 +61,12 @@ import numpy as np
 import pandas as pd
 
 from benchmarks.truth.cache import day_paths
+from ebus_env.outputs import write_text
 
 SOURCES = ("truthsim", "backward", "fastsim")
-WINDOW_S = {"bms": 60, "soc": 300}
+WINDOW_S = {"bms": 60, "volt": 60, "soc": 300}
+SIGNAL = {"bms": ("power_w", False), "volt": ("volts_v", False), "soc": ("soc", True)}
+"""Each kind's column of a run and whether it is read as its change over a window."""
 LAGS = 4
 SNR_MIN = 3.0
 SEPARATION = 9.0
@@ -228,11 +236,12 @@ def ceiling_day(job) -> dict:
         short["charger_kw"] = plan["charger_kw"] * (1.0 - STEP)
         sensitivities["charger_share"] = source.run(short, base, None, {}, day)
     measured = {"bms": (log["battery_current_a"] * log["battery_voltage_v"]).to_numpy(float),
+                "volt": log["battery_voltage_v"].to_numpy(float),
                 "soc": log["soc_pct"].to_numpy(float) / 100.0}
     row = {"source": name, "case": case.case_id, "hidden": case.hidden,
            "hours": case.hours, "time_s": 0.0}
     for kind, width in WINDOW_S.items():
-        column, difference = ("power_w", False) if kind == "bms" else ("soc", True)
+        column, difference = SIGNAL[kind]
 
         def signal(run, column=column, width=width, difference=difference):
             return windows(run[column].to_numpy()[:n], width, difference)
@@ -242,7 +251,7 @@ def ceiling_day(job) -> dict:
         nuisance = [base_signal, np.ones_like(base_signal)]
         if kind == "bms":  # a current offset shows as offset x V
             nuisance[1] = windows(y0["volts_v"].to_numpy()[:n], width, False)
-        else:  # the BMS counts charge without the cells' coulombic efficiency
+        elif kind == "soc":  # the BMS counts charge without the cells' coulombic efficiency
             nuisance.append(windows(y0["charged_as"].to_numpy()[:n], width, True))
         floor = 1e-9 * max(np.abs(base_signal).max(), 1.0)  # a run's rounding, not a change
         moved = [signal(r) - base_signal for r in sensitivities.values()]
@@ -287,20 +296,41 @@ def cases_of(source: Source, smoke: bool, per_effect: int | None,
     return out
 
 
+EITHER = "bms|volt"
+"""A BMS log's reading: the power or the voltage (the better of the two per day)."""
+
+
+def with_either(row: dict) -> dict:
+    """``row`` with its BMS log's :data:`EITHER` reading: separable in the power or in the
+    voltage, at the larger SNR; on a control day the larger of the two largest SNRs."""
+    if "bms" not in row or "volt" not in row:
+        return row
+    power, volt = row["bms"], row["volt"]
+    either = {"windows": power["windows"],
+              "max_other_snr": max(power["max_other_snr"], volt["max_other_snr"])}
+    scored = [k for k in (power, volt) if "snr" in k]
+    if scored:
+        best = max(scored, key=lambda k: (k["separable"], k["snr"]))
+        either.update(snr=best["snr"], margin=best["margin"], fall=best["fall"],
+                      separable=any(k["separable"] for k in scored))
+    return {**row, EITHER: either}
+
+
 def report(rows: list[dict]) -> None:
+    rows = [with_either(r) for r in rows]
     print("\nThe ceiling: the hidden effect's SNR with every bus-to-bus parameter free, and the "
           "days where it is separable (SNR >= 3 and better than every other candidate)")
-    print(f"  {'source':9s} {'log':4s} {'hidden effect':18s} {'days':>5s} {'separable':>10s} "
+    print(f"  {'source':9s} {'log':8s} {'hidden effect':18s} {'days':>5s} {'separable':>10s} "
           f"{'SNR median':>11s} {'(range)':>17s}")
     for name in SOURCES:
-        for kind in WINDOW_S:
+        for kind in (*WINDOW_S, EITHER):
             part = [r for r in rows if r["source"] == name and kind in r]
             for hidden in sorted({r["hidden"] or "control" for r in part}):
                 group = [r for r in part if (r["hidden"] or "control") == hidden]
                 if hidden == "control":
                     alarms = sum(r[kind]["max_other_snr"] >= SNR_MIN for r in group)
                     snrs = [r[kind]["max_other_snr"] for r in group]
-                    print(f"  {name:9s} {kind:4s} {'control':18s} {len(group):5d} "
+                    print(f"  {name:9s} {kind:8s} {'control':18s} {len(group):5d} "
                           f"{alarms:>4d} >= 3 {np.median(snrs):11.1f} "
                           f"({min(snrs):6.1f}, {max(snrs):6.1f})  (the largest candidate SNR)")
                     continue
@@ -310,14 +340,14 @@ def report(rows: list[dict]) -> None:
                 snrs = [s["snr"] for s in scored]
                 separable = sum(s["separable"] for s in scored)
                 falls = [s["fall"] for s in scored if "fall" in s]
-                print(f"  {name:9s} {kind:4s} {hidden:18s} {len(scored):5d} "
+                print(f"  {name:9s} {kind:8s} {hidden:18s} {len(scored):5d} "
                       f"{100 * separable / len(scored):9.0f} % {np.median(snrs):11.1f} "
                       f"({min(snrs):6.1f}, {max(snrs):6.1f})"
                       + (f"  fall {100 * np.median(falls):.0f} %" if falls else ""))
             library = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
             if library:
                 share = sum(s["separable"] for s in library) / len(library)
-                print(f"  {name:9s} {kind:4s} {'all hidden effects':18s} {len(library):5d} "
+                print(f"  {name:9s} {kind:8s} {'all hidden effects':18s} {len(library):5d} "
                       f"{100 * share:9.0f} %")
     times = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     if times:
@@ -340,7 +370,12 @@ def main(argv: list[str] | None = None) -> None:
                              "power-domain diagnosis does")
     parser.add_argument("--effect", action="append", default=[],
                         help="only the days hiding this effect (and --controls control days)")
+    parser.add_argument("--from-rows", type=Path, action="append", default=[],
+                        help="report the rows of these files (from --rows), running nothing")
     args = parser.parse_args(argv)
+    if args.from_rows:
+        report([r for path in args.from_rows for r in json.loads(path.read_text())])
+        return
     per_effect, controls = (1, 1) if args.smoke else (args.per_effect, args.controls)
     jobs = []
     for name in args.source or SOURCES:
@@ -360,8 +395,8 @@ def main(argv: list[str] | None = None) -> None:
                 + (" separable" if row[k].get("separable") else "")
                 + f" (others up to {row[k]['max_other_snr']:.1f})" for k in WINDOW_S)
                 + f"; {row['time_s']:.0f} s", flush=True)
-            if args.rows:
-                args.rows.write_text(json.dumps(rows, indent=1, default=float))
+            if args.rows:  # a temporary file, then renamed: a run cut short keeps its rows
+                write_text(args.rows, json.dumps(rows, indent=1, default=float))
     report(rows)
 
 
