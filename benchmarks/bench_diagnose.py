@@ -292,6 +292,11 @@ def main() -> None:
                         help="out of family: report the days of these --rows files, together "
                         "(repeatable), without running them; the first file's row of a day "
                         "is kept")
+    parser.add_argument("--ceiling", type=Path, action="append", default=[],
+                        help="with --from-rows: the rows of python -m benchmarks.ceiling "
+                        "--rows FILE (repeatable), read beside the single days' top-1: what "
+                        "the logs hold, and the bar then (the ceiling less 5 points where "
+                        "lower)")
     parser.add_argument("--days-per-bus", type=int, default=1,
                         help="out of family: diagnose N days of each case's bus together "
                         "(its day and N - 1 more, the same effect hidden; the truth "
@@ -315,7 +320,10 @@ def main() -> None:
         for path in args.from_rows:
             for row in json.loads(path.read_text()):
                 rows.setdefault(row_key(row), row)
-        report(list(rows.values()), args.oracle, args.workers, args.tune_source)
+        ceiling = {(r["source"], r["case"]): r for path in args.ceiling
+                   for r in json.loads(path.read_text())}
+        report(list(rows.values()), args.oracle, args.workers, args.tune_source,
+               ceiling or None)
         return
     if args.out_of_family:
         cache = args.cache or DAYS_CACHE

@@ -598,9 +598,9 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
 
 
 def report(rows, oracle: bool = False, workers: int = 2,
-           tune_source: str = TUNE_SOURCE) -> dict:
+           tune_source: str = TUNE_SOURCE, ceiling: dict | None = None) -> dict:
     """The report of rows (:func:`benchmarks.truth.scoring.report`)."""
-    return scoring.report(rows, oracle, workers, tune_source, ORACLE)
+    return scoring.report(rows, oracle, workers, tune_source, ORACLE, ceiling)
 
 
 # the scoring's names, for the benchmarks and tests that read them from here

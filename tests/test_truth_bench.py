@@ -606,6 +606,39 @@ def test_the_headline_is_the_worst_source_the_rules_were_not_tuned_on(capsys):
     assert "not given" in next(x for x in out.splitlines() if "start day" in x)
 
 
+def test_the_top1_bar_falls_to_the_ceiling_less_5_points_where_the_logs_hold_less(capsys):
+    """Beside a source's top-1, the share of its library days the source's own model separates
+    (a BMS log: in its power or its voltage), the top-1 on the same days, and the bar then:
+    the bar, or the ceiling less 5 points where that is lower. Days the ceiling did not read
+    and control days are not counted."""
+    def day(case, right, expected="cabin_hvac"):
+        return {"source": "fastsim", "case": case, "expected": expected, "right": right}
+
+    def reading(separable):
+        return {"windows": 100, "max_other_snr": 1.0, "snr": 5.0 if separable else 1.0,
+                "margin": 20.0, "fall": 0.5, "separable": separable}
+
+    rows = [day("a", True), day("b", True), day("c", False), day("d", False),
+            day("e", True), day("control", False, None)]
+    ceiling = {("fastsim", c): {"source": "fastsim", "case": c, "bms": reading(power),
+                                "volt": reading(volt), "soc": reading(soc)}
+               for c, power, volt, soc in (("a", True, False, True), ("b", False, True, False),
+                                           ("c", False, False, True), ("d", True, True, False),
+                                           ("control", False, False, False))}
+    bms = bench.scoring.ceiling_figures(rows, ceiling, "bms")
+    assert bms["held"] == (0.75, 4) and bms["top1"] == (0.5, 4)  # day "e" not read
+    assert bms["bar"] == pytest.approx(0.70)  # 0.75 less 5 points, under the bar of 90 %
+    soc = bench.scoring.ceiling_figures(rows, ceiling, "soc")
+    assert soc["held"] == (0.5, 4) and soc["bar"] == pytest.approx(0.45)
+    full = {k: dict(v, soc=reading(True)) for k, v in ceiling.items()}
+    assert bench.scoring.ceiling_figures(rows, full, "soc")["bar"] == 0.80  # the bar itself
+    groups = {("soc", "truthsim", "day"): {"top1": (0.71, 70)},
+              ("soc", "fastsim", "day"): {"top1": (0.5, 4), "ceiling": soc}}
+    bench.scoring.headline(groups, "truthsim")
+    top = next(x for x in capsys.readouterr().out.splitlines() if "top-1 right over" in x)
+    assert "fastsim's logs hold 50 %, bar then >= 45 %" in top
+
+
 def test_a_bus_is_diagnosed_from_all_its_days_at_once_with_their_dates(tmp_path,
                                                                        monkeypatch):
     """``diagnose_truth_bus``: one diagnosis of every day's profiles (each with its date),
