@@ -358,10 +358,10 @@ def report(rows: list[dict]) -> None:
                       f"{100 * separable / len(scored):9.0f} % {np.median(snrs):11.1f} "
                       f"({min(snrs):6.1f}, {max(snrs):6.1f})"
                       + (f"  fall {100 * np.median(falls):.0f} %" if falls else ""))
-            library = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
-            if library:
-                share = sum(s["separable"] for s in library) / len(library)
-                print(f"  {name:9s} {kind:8s} {'all hidden effects':18s} {len(library):5d} "
+            hidden_days = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
+            if hidden_days:
+                share = sum(s["separable"] for s in hidden_days) / len(hidden_days)
+                print(f"  {name:9s} {kind:8s} {'all hidden effects':18s} {len(hidden_days):5d} "
                       f"{100 * share:9.0f} %")
     times = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     if times:
