@@ -66,7 +66,7 @@ def test_a_cold_pack_the_power_does_not_show_is_separable_in_the_voltage():
     """The truth simulator's drive asks for a power, so its cold pack moves the pack's
     current and voltage but hardly their product: on the first 3 h of its cold-battery day 02
     the power has no signature of it, while the logged voltage holds it far above 3 and
-    better than every other candidate."""
+    better than every candidate of another library effect."""
     source = ceiling.Source("truthsim")
     cold = [c for c in ceiling.cases_of(source, False, 3, 0, ("cold_battery",))
             if c.hidden == "cold_battery"][2]
