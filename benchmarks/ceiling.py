@@ -3,6 +3,7 @@ day's hidden effect against the truth source's own signatures, every bus-to-bus 
 
     python -m benchmarks.ceiling [--source truthsim] [--per-effect N] [--controls M] [--smoke]
         [--cache DIR] [--rows FILE] [--workers 2] [--effect E] [--charger-share]
+    python -m benchmarks.ceiling --kind bus [--per-condition 5] [--control-buses 4] ...
     python -m benchmarks.ceiling --from-rows FILE [--from-rows FILE2 ...]   # report, run nothing
 
 For a day of the bench the truth source itself is run again (its own simulator: the truth
@@ -47,7 +48,15 @@ its true form). On
 a control day: the largest SNR of any candidate (what a diagnosis would have to refuse). Per
 effect, log type and source, the share of days that are separable is the ceiling that the
 diagnosis's bars are compared with; a BMS log holds an effect separable in its power or its
-voltage. Single days only: the multi-day buses are not read here.
+voltage.
+
+A **multi-day bus** (``--kind bus``) is read over its six days together: its days' windows
+stacked, each bus-to-bus parameter one column over all its days (a bus's own parameters hold
+across its days), the log's nuisances one per day, and each candidate acting from each day on
+(a fault's start is not known; a rival gets its best start). The hidden effect is read at its
+true start; a fault that starts on a day is also **dated** where every start more than
+``START_TOLERANCE_DAYS`` (1) from the true one fits worse by :data:`SEPARATION`: the ceiling
+of the start-day figure. A control bus reports its largest candidate SNR at any start.
 """
 
 from __future__ import annotations
@@ -63,6 +72,7 @@ import numpy as np
 import pandas as pd
 
 from benchmarks.truth.cache import day_paths
+from benchmarks.truth.scoring import START_TOLERANCE_DAYS
 from ebus_env.outputs import write_text
 
 SOURCES = ("truthsim", "backward", "fastsim")
@@ -110,6 +120,9 @@ class Source:
             self.module, self._sim = fs, fs.simulate
             self._draw = lambda effect, rng, plan, chemistry: fs._draw_effect(effect, rng, plan)
             self.effects = fs.HIDDEN
+        # a bus's candidates: the single days' and the source's multi-day conditions
+        self.bus_effects = (*self.effects,
+                            *(c for c in self.module.MULTI_DAY if c not in self.effects))
 
     def run(self, plan, base, effect, physical, day) -> pd.DataFrame:
         """A run's pack power [W] and SoC [1], 1 Hz."""
@@ -209,29 +222,32 @@ def fit(y: np.ndarray, basis: np.ndarray, signature: np.ndarray) -> dict:
 
 def library(effect: str | None) -> str | None:
     """The library effect a source's hidden effect stands for (the diagnosis's right answer),
-    ``outside_library`` for a load or force outside it."""
-    from benchmarks.truth.cases import EFFECTS
+    ``outside_library`` for a load or force outside it (a source's own, such as FASTSim's
+    soft tyres, too); None for nothing hidden."""
+    from benchmarks.truth.cases import VERDICTS
 
-    return EFFECTS[effect][0] if effect in EFFECTS else effect
+    return None if effect is None else VERDICTS.get(effect, "outside_library")
 
 
-def ceiling_day(job) -> dict:
-    """A day's SNR of its hidden effect and its separability, on both log types. ``job``:
-    (source name, case, cache folder or None[, the charger's delivered share free])."""
-    name, case, cache, charger_share = (*job, False)[:4]
-    t0 = time.perf_counter()
-    source = Source(name)
+def day_signals(source: Source, case, cache: Path | None, charger_share: bool,
+                effects: tuple[str, ...], candidate_seed: int) -> dict:
+    """A day's signals per log kind (:data:`WINDOW_S`): ``y``, the measured signal less
+    ``y_0``; ``moved``, each bus-to-bus parameter's sensitivity (those above a run's rounding);
+    ``nuisance``, the log's own nuisance columns; ``signatures``, each candidate's (the hidden
+    effect at the day's true values, every other one at values drawn from
+    ``candidate_seed``)."""
     plan, base, ph, day, _ = source.module.day_trace(case)
     chemistry = base.get("chemistry") or "LFP"
-    log = measured_log(source, case, Path(cache) if cache else None)
+    log = measured_log(source, case, cache)
     y0 = source.run(plan, base, None, {}, day)
     n = min(len(log), len(y0))
     candidates = {}
-    for effect in source.effects:
-        values = ph if effect == case.hidden else source.draw(effect, plan, chemistry, case.seed)
+    for effect in effects:
+        values = ph if effect == case.hidden else source.draw(effect, plan, chemistry,
+                                                              candidate_seed)
         candidates[effect] = source.run(plan, base, effect, values, day)
     sensitivities = {}
-    for param in PARAMS[name]:
+    for param in PARAMS[source.name]:
         if param not in base:
             continue
         moved = dict(base)
@@ -248,8 +264,7 @@ def ceiling_day(job) -> dict:
     measured = {"bms": (log["battery_current_a"] * log["battery_voltage_v"]).to_numpy(float),
                 "volt": log["battery_voltage_v"].to_numpy(float),
                 "soc": log["soc_pct"].to_numpy(float) / 100.0}
-    row = {"source": name, "case": case.case_id, "hidden": case.hidden,
-           "hours": case.hours, "time_s": 0.0}
+    out = {}
     for kind, width in WINDOW_S.items():
         column, difference = SIGNAL[kind]
 
@@ -257,35 +272,124 @@ def ceiling_day(job) -> dict:
             return windows(run[column].to_numpy()[:n], width, difference)
 
         base_signal = signal(y0)
-        y = windows(measured[kind][:n], width, difference) - base_signal
         nuisance = [base_signal, np.ones_like(base_signal)]
         if kind == "bms":  # a current offset shows as offset x V
             nuisance[1] = windows(y0["volts_v"].to_numpy()[:n], width, False)
         elif kind == "soc":  # the BMS counts charge without the cells' coulombic efficiency
             nuisance.append(windows(y0["charged_as"].to_numpy()[:n], width, True))
         floor = 1e-9 * max(np.abs(base_signal).max(), 1.0)  # a run's rounding, not a change
-        moved = [signal(r) - base_signal for r in sensitivities.values()]
-        basis = np.column_stack([m for m in moved if np.abs(m).max() > floor] + nuisance)
-        rss_bus = float(np.sum(basis_residual(y, basis) ** 2))  # the bus's parameters alone
-        fits = {}
-        for effect, run in candidates.items():
-            sig = signal(run) - base_signal
-            if np.abs(sig).max() > floor:
-                fits[effect] = fit(y, basis, sig)
-        own = fits.get(case.hidden)
-        # a rival is another library effect: the source's cabin heating and cooling are one
-        # (the library's cabin), its loads outside the library all "no library effect"
-        others = {e: f for e, f in fits.items() if library(e) != library(case.hidden)}
-        # one-sided: an effect acts with a positive strength (a load draws, a force resists)
-        result = {"windows": len(y), "max_other_snr": max(
-            (f["snr"] for e, f in fits.items() if e != case.hidden and np.isfinite(f["snr"])),
-            default=0.0)}
-        if own is not None and np.isfinite(own["snr"]):
-            margin = min(((f["rss"] - own["rss"]) / (own["sigma2"] * own["inflation"])
-                          for f in others.values()), default=np.inf)
-            result.update(snr=own["snr"], margin=float(margin),
-                          fall=float(1.0 - own["rss"] / rss_bus) if rss_bus > 0 else 0.0,
-                          separable=bool(own["snr"] >= SNR_MIN and margin >= SEPARATION))
+        moved = {p: signal(r) - base_signal for p, r in sensitivities.items()}
+        signatures = {e: signal(r) - base_signal for e, r in candidates.items()}
+        out[kind] = {
+            "y": windows(measured[kind][:n], width, difference) - base_signal,
+            "moved": {p: m for p, m in moved.items() if np.abs(m).max() > floor},
+            "nuisance": nuisance,
+            "signatures": {e: s for e, s in signatures.items() if np.abs(s).max() > floor}}
+    return out
+
+
+def separation(y: np.ndarray, basis: np.ndarray, signatures: dict, hidden: str | None) -> dict:
+    """One log kind's reading of a hidden effect: its SNR, its margin over every candidate
+    that stands for another library effect, its fall and whether it is separable; the largest
+    SNR of any other candidate (a control's alarm). ``signatures``: candidate -> column, or
+    (candidate, start day) -> column on a bus (``hidden`` then (effect, its true start))."""
+    rss_bus = float(np.sum(basis_residual(y, basis) ** 2))  # the bus's parameters alone
+    fits = {key: fit(y, basis, sig) for key, sig in signatures.items()}
+
+    def effect_of(key):
+        return key[0] if isinstance(key, tuple) else key
+
+    own = fits.get(hidden) if hidden is not None else None
+    # a rival is another library effect: the source's cabin heating and cooling are one
+    # (the library's cabin), its loads outside the library all "no library effect"
+    others = {k: f for k, f in fits.items()
+              if library(effect_of(k)) != library(effect_of(hidden))}
+    # one-sided: an effect acts with a positive strength (a load draws, a force resists)
+    result = {"windows": len(y), "max_other_snr": max(
+        (f["snr"] for k, f in fits.items()
+         if (hidden is None or effect_of(k) != effect_of(hidden)) and np.isfinite(f["snr"])),
+        default=0.0)}
+    if own is not None and np.isfinite(own["snr"]):
+        margin = min((excess(f, own) for f in others.values()), default=np.inf)
+        result.update(snr=own["snr"], margin=float(margin),
+                      fall=float(1.0 - own["rss"] / rss_bus) if rss_bus > 0 else 0.0,
+                      separable=bool(own["snr"] >= SNR_MIN and margin >= SEPARATION))
+    result["fits"] = fits
+    return result
+
+
+def excess(other: dict, own: dict) -> float:
+    """How much worse ``other`` fits than ``own``: the residual sum of squares' excess over
+    own's residual variance, inflated by the autocorrelation (a chi-square's scale)."""
+    return (other["rss"] - own["rss"]) / (own["sigma2"] * own["inflation"])
+
+
+def ceiling_day(job) -> dict:
+    """A day's SNR of its hidden effect and its separability, on both log types. ``job``:
+    (source name, case, cache folder or None[, the charger's delivered share free])."""
+    name, case, cache, charger_share = (*job, False)[:4]
+    t0 = time.perf_counter()
+    source = Source(name)
+    signals = day_signals(source, case, Path(cache) if cache else None, charger_share,
+                          source.effects, case.seed)
+    row = {"source": name, "case": case.case_id, "hidden": case.hidden,
+           "hours": case.hours, "time_s": 0.0}
+    for kind, s in signals.items():
+        basis = np.column_stack([*s["moved"].values(), *s["nuisance"]])
+        result = separation(s["y"], basis, s["signatures"], case.hidden)
+        del result["fits"]
+        row[kind] = result
+    row["time_s"] = time.perf_counter() - t0
+    return row
+
+
+def ceiling_bus(job) -> dict:
+    """A multi-day bus's reading: its days' signals stacked, the bus-to-bus parameters one
+    per bus (each a column over all its days), the log's nuisances one per day, and each
+    candidate acting from each day on (a fault's start is free; a rival gets its best start).
+    The hidden effect is read at its true start; a fault that starts on a day is **dated**
+    where every start more than ``START_TOLERANCE_DAYS`` from the true one fits worse by
+    :data:`SEPARATION`. ``job``: (source name, bus, cache folder or None[, charger share])."""
+    name, bus, cache, charger_share = (*job, False)[:4]
+    t0 = time.perf_counter()
+    source = Source(name)
+    days = source.module.bus_days(bus)
+    how = source.module.MULTI_DAY[bus.condition][1] if bus.condition else None
+    true_start = bus.start_day or 0
+    signals = [day_signals(source, case, Path(cache) if cache else None, charger_share,
+                           source.bus_effects, bus.seed) for case in days]
+    row = {"source": name, "case": bus.bus_id, "hidden": bus.condition, "condition_kind": how,
+           "start_day": bus.start_day, "days": len(days),
+           "hours": float(sum(c.hours for c in days)), "time_s": 0.0}
+    for kind in WINDOW_S:
+        parts = [s[kind] for s in signals]
+        sizes = [len(p["y"]) for p in parts]
+
+        def stacked(columns, parts=parts, sizes=sizes):
+            return np.concatenate([c if c is not None else np.zeros(k)
+                                   for c, k in zip(columns, sizes, strict=True)])
+
+        params = sorted({p for part in parts for p in part["moved"]})
+        shared = [stacked([part["moved"].get(p) for part in parts]) for p in params]
+        per_day = [stacked([column if i == d else None for i in range(len(parts))])
+                   for d, part in enumerate(parts) for column in part["nuisance"]]
+        effects = sorted({e for part in parts for e in part["signatures"]})
+        signatures = {(e, k): stacked([part["signatures"].get(e) if d >= k else None
+                                       for d, part in enumerate(parts)])
+                      for e in effects for k in range(len(parts))}
+        signatures = {key: s for key, s in signatures.items() if np.abs(s).max() > 0}
+        y = stacked([part["y"] for part in parts])
+        hidden = (bus.condition, true_start) if bus.condition else None
+        result = separation(y, np.column_stack(shared + per_day), signatures, hidden)
+        fits = result.pop("fits")
+        if how == "from_day" and hidden in fits:
+            own = fits[hidden]
+            starts = {k: f for (e, k), f in fits.items() if e == bus.condition}
+            far = [excess(f, own) for k, f in starts.items()
+                   if abs(k - true_start) > START_TOLERANCE_DAYS]
+            result.update(best_start=min(starts, key=lambda k: starts[k]["rss"]),
+                          start_margin=float(min(far, default=np.inf)),
+                          dated=bool(min(far, default=np.inf) >= SEPARATION))
         row[kind] = result
     row["time_s"] = time.perf_counter() - t0
     return row
@@ -326,46 +430,94 @@ def with_either(row: dict) -> dict:
         best = max(scored, key=lambda k: (k["separable"], k["snr"]))
         either.update(snr=best["snr"], margin=best["margin"], fall=best["fall"],
                       separable=any(k["separable"] for k in scored))
+        if any("dated" in k for k in scored):  # a bus's fault: its start dated in either
+            either["dated"] = any(k.get("dated", False) for k in scored)
     return {**row, EITHER: either}
+
+
+def grouped(rows: list[dict]):
+    """Per source and log kind: its rows and their readings by hidden effect ("control")."""
+    for name in SOURCES:
+        for kind in (*WINDOW_S, EITHER):
+            part = [r for r in rows if r["source"] == name and kind in r]
+            groups = {h: [r[kind] for r in part if (r["hidden"] or "control") == h]
+                      for h in sorted({r["hidden"] or "control" for r in part})}
+            yield name, kind, part, groups
 
 
 def report(rows: list[dict]) -> None:
     rows = [with_either(r) for r in rows]
+    buses = [r for r in rows if "days" in r]
+    rows = [r for r in rows if "days" not in r]
+    if buses:
+        report_buses(buses)
+    if not rows:
+        return
     print("\nThe ceiling: the hidden effect's SNR with every bus-to-bus parameter free, and the "
           "days where it is separable (SNR >= 3 and better than every candidate of another "
           "library effect)")
     print(f"  {'source':9s} {'log':8s} {'hidden effect':18s} {'days':>5s} {'separable':>10s} "
           f"{'SNR median':>11s} {'(range)':>17s}")
-    for name in SOURCES:
-        for kind in (*WINDOW_S, EITHER):
-            part = [r for r in rows if r["source"] == name and kind in r]
-            for hidden in sorted({r["hidden"] or "control" for r in part}):
-                group = [r for r in part if (r["hidden"] or "control") == hidden]
-                if hidden == "control":
-                    alarms = sum(r[kind]["max_other_snr"] >= SNR_MIN for r in group)
-                    snrs = [r[kind]["max_other_snr"] for r in group]
-                    print(f"  {name:9s} {kind:8s} {'control':18s} {len(group):5d} "
-                          f"{alarms:>4d} >= 3 {np.median(snrs):11.1f} "
-                          f"({min(snrs):6.1f}, {max(snrs):6.1f})  (the largest candidate SNR)")
-                    continue
-                scored = [r[kind] for r in group if "snr" in r[kind]]
-                if not scored:
-                    continue
-                snrs = [s["snr"] for s in scored]
-                separable = sum(s["separable"] for s in scored)
-                falls = [s["fall"] for s in scored if "fall" in s]
-                print(f"  {name:9s} {kind:8s} {hidden:18s} {len(scored):5d} "
-                      f"{100 * separable / len(scored):9.0f} % {np.median(snrs):11.1f} "
-                      f"({min(snrs):6.1f}, {max(snrs):6.1f})"
-                      + (f"  fall {100 * np.median(falls):.0f} %" if falls else ""))
-            hidden_days = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
-            if hidden_days:
-                share = sum(s["separable"] for s in hidden_days) / len(hidden_days)
-                print(f"  {name:9s} {kind:8s} {'all hidden effects':18s} {len(hidden_days):5d} "
-                      f"{100 * share:9.0f} %")
+    for name, kind, part, groups in grouped(rows):
+        for hidden, group in groups.items():
+            if hidden == "control":
+                alarms = sum(g["max_other_snr"] >= SNR_MIN for g in group)
+                snrs = [g["max_other_snr"] for g in group]
+                print(f"  {name:9s} {kind:8s} {'control':18s} {len(group):5d} "
+                      f"{alarms:>4d} >= 3 {np.median(snrs):11.1f} "
+                      f"({min(snrs):6.1f}, {max(snrs):6.1f})  (the largest candidate SNR)")
+                continue
+            scored = [g for g in group if "snr" in g]
+            if not scored:
+                continue
+            snrs = [s["snr"] for s in scored]
+            separable = sum(s["separable"] for s in scored)
+            falls = [s["fall"] for s in scored if "fall" in s]
+            print(f"  {name:9s} {kind:8s} {hidden:18s} {len(scored):5d} "
+                  f"{100 * separable / len(scored):9.0f} % {np.median(snrs):11.1f} "
+                  f"({min(snrs):6.1f}, {max(snrs):6.1f})"
+                  + (f"  fall {100 * np.median(falls):.0f} %" if falls else ""))
+        hidden_days = [r[kind] for r in part if r["hidden"] and "snr" in r[kind]]
+        if hidden_days:
+            share = sum(s["separable"] for s in hidden_days) / len(hidden_days)
+            print(f"  {name:9s} {kind:8s} {'all hidden effects':18s} {len(hidden_days):5d} "
+                  f"{100 * share:9.0f} %")
     times = [r["time_s"] * 10.0 / r["hours"] for r in rows]
     if times:
         print(f"  per 10 h day: {np.median(times):.0f} s (median, one core)")
+
+
+def report_buses(rows: list[dict]) -> None:
+    """Per source, log kind and condition: the buses whose hidden effect is separable over
+    their days together, and of the faults that start on a day those whose start is dated."""
+    print("\nThe ceiling on multi-day buses: the bus's parameters shared by its days, each "
+          "candidate from each day on; separable as for a day; a fault's start dated where "
+          f"every start more than {START_TOLERANCE_DAYS} day from it fits worse by "
+          f"{SEPARATION:g}")
+    print(f"  {'source':9s} {'log':8s} {'condition':20s} {'buses':>5s} {'separable':>10s} "
+          f"{'dated':>7s} {'SNR median':>11s}")
+    for name, kind, part, groups in grouped(rows):
+        for hidden, group in groups.items():
+            if hidden == "control":
+                alarms = sum(g["max_other_snr"] >= SNR_MIN for g in group)
+                print(f"  {name:9s} {kind:8s} {'control':20s} {len(group):5d} "
+                      f"{alarms:>4d} >= 3 (the largest candidate SNR, any start)")
+                continue
+            scored = [g for g in group if "snr" in g]
+            if not scored:
+                continue
+            faults = [g for g in scored if "dated" in g]
+            dated = f"{sum(g['dated'] for g in faults)}/{len(faults)}" if faults else "-"
+            print(f"  {name:9s} {kind:8s} {hidden:20s} {len(scored):5d} "
+                  f"{100 * np.mean([g['separable'] for g in scored]):9.0f} % {dated:>7s} "
+                  f"{np.median([g['snr'] for g in scored]):11.1f}")
+        library_buses = [r[kind] for r in part if "snr" in r[kind]
+                         and library(r["hidden"]) not in (None, "outside_library")]
+        if library_buses:
+            print(f"  {name:9s} {kind:8s} {'library conditions':20s} {len(library_buses):5d} "
+                  f"{100 * np.mean([g['separable'] for g in library_buses]):9.0f} %")
+    times = [r["time_s"] for r in rows]
+    print(f"  per bus: {np.median(times):.0f} s (median, one core)")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -384,6 +536,12 @@ def main(argv: list[str] | None = None) -> None:
                              "power-domain diagnosis does")
     parser.add_argument("--effect", action="append", default=[],
                         help="only the days hiding this effect (and --controls control days)")
+    parser.add_argument("--kind", choices=("day", "bus"), default="day",
+                        help="single days, or the multi-day buses (six days of one bus)")
+    parser.add_argument("--per-condition", type=int, default=5,
+                        help="buses per condition (with --kind bus)")
+    parser.add_argument("--control-buses", type=int, default=4,
+                        help="control buses per source (with --kind bus)")
     parser.add_argument("--from-rows", type=Path, action="append", default=[],
                         help="report the rows of these files (from --rows), running nothing")
     args = parser.parse_args(argv)
@@ -398,15 +556,24 @@ def main(argv: list[str] | None = None) -> None:
         except ImportError as exc:
             print(f"  {name} not available ({exc}): skipped")
             continue
-        jobs += [(name, c, str(args.cache) if args.cache else None, args.charger_share)
-                 for c in cases_of(source, args.smoke, per_effect, controls, tuple(args.effect))]
+        cache = str(args.cache) if args.cache else None
+        if args.kind == "bus":
+            jobs += [(name, b, cache, args.charger_share)
+                     for b in source.module.buses(args.per_condition, args.control_buses)
+                     if not args.effect or b.condition is None or b.condition in args.effect]
+        else:
+            jobs += [(name, c, cache, args.charger_share)
+                     for c in cases_of(source, args.smoke, per_effect, controls,
+                                       tuple(args.effect))]
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
-        for row in pool.map(ceiling_day, jobs):
+        for row in pool.map(ceiling_bus if args.kind == "bus" else ceiling_day, jobs):
             rows.append(row)
             print(f"  {row['source']}/{row['case']}: " + "; ".join(
                 (f"{k} SNR {row[k]['snr']:.1f}" if "snr" in row[k] else f"{k} (nothing hidden)")
                 + (" separable" if row[k].get("separable") else "")
+                + (f", start {'dated' if row[k]['dated'] else 'not dated'}"
+                   if "dated" in row[k] else "")
                 + f" (others up to {row[k]['max_other_snr']:.1f})" for k in WINDOW_S)
                 + f"; {row['time_s']:.0f} s", flush=True)
             if args.rows:  # a temporary file, then renamed: a run cut short keeps its rows

@@ -47,6 +47,55 @@ def test_the_fit_finds_a_signature_the_basis_cannot_make_and_not_one_it_can():
     assert ceiling.fit(y, basis, 2.0 * np.ones(n))["snr"] == 0.0
 
 
+def _synthetic_bus(monkeypatch, condition, start_day):
+    """``ceiling_bus`` on six synthetic days: a bus-to-bus parameter with one coefficient on
+    every day, two nuisances per day, a fault (``dragging_brake``) acting from
+    ``start_day`` on and a rival (``regen_soc_limit``) that never acts."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(7)
+    n, days = 200, 6
+    t = np.linspace(0.0, 1.0, n)
+    signals = []
+    for d in range(days):
+        moved = rng.normal(size=n).cumsum() / 10.0  # the parameter's day-to-day sensitivity
+        nuisance = [rng.normal(size=n), np.ones(n)]
+        brake = np.sin(2 * np.pi * (3 + d) * t) + 1.0
+        regen = np.cos(2 * np.pi * (5 + d) * t)
+        y = 0.5 * moved + 0.3 * nuisance[0] + 0.1 * d + rng.normal(0.0, 0.05, n)
+        if condition and d >= start_day:
+            y = y + 0.2 * brake
+        reading = {"y": y, "moved": {"curb_mass_kg": moved}, "nuisance": nuisance,
+                   "signatures": {"dragging_brake": brake, "regen_soc_limit": regen}}
+        signals.append(dict.fromkeys(ceiling.WINDOW_S, reading))
+    module = SimpleNamespace(
+        bus_days=lambda bus: [SimpleNamespace(hours=9.0, day=d) for d in range(days)],
+        MULTI_DAY={"dragging_brake": ("outside_library", "from_day")})
+    monkeypatch.setattr(ceiling, "Source", lambda name: SimpleNamespace(
+        name=name, module=module, bus_effects=("dragging_brake", "regen_soc_limit")))
+    monkeypatch.setattr(ceiling, "day_signals", lambda source, case, *args: signals[case.day])
+    bus = SimpleNamespace(bus_id="bus_x", condition=condition, start_day=start_day, seed=1)
+    return ceiling.ceiling_bus(("truthsim", bus, None))
+
+
+def test_a_bus_fault_is_read_over_its_days_and_dated_from_its_first_day(monkeypatch):
+    """A fault from day 3 stands far above the noise with the bus's parameter shared by its
+    days; every start more than a day from the true one fits clearly worse (dated), the best
+    start is the true one; a control bus of the same days has no candidate at 3 at any
+    start."""
+    row = _synthetic_bus(monkeypatch, "dragging_brake", 3)
+    reading = row["bms"]
+    assert row["days"] == 6 and row["condition_kind"] == "from_day"
+    assert reading["separable"] and reading["snr"] > 10.0
+    assert reading["best_start"] == 3 and reading["dated"]
+    assert reading["start_margin"] > ceiling.SEPARATION
+    # what the bus's parameters leave: the fault's swing (0.2^2 / 2 on 3 days of 6) and the
+    # noise (0.05^2); the fault removes all but the noise: 1 - 0.0025 / 0.0125
+    assert reading["fall"] == pytest.approx(0.8, abs=0.03)
+    quiet = _synthetic_bus(monkeypatch, None, None)["soc"]
+    assert "snr" not in quiet and quiet["max_other_snr"] < 3.0
+
+
 def test_a_bms_log_holds_what_its_power_or_its_voltage_holds():
     """A day separable in the voltage only is separable on the BMS log, at the voltage's SNR;
     a control day's largest SNR is the larger of the two signals'."""

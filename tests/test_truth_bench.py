@@ -639,6 +639,53 @@ def test_the_top1_bar_falls_to_the_ceiling_less_5_points_where_the_logs_hold_les
     assert "fastsim's logs hold 50 %, bar then >= 45 %" in top
 
 
+def test_a_bus_s_bars_fall_to_what_its_days_together_hold(capsys):
+    """On buses the ceiling's rows (by bus) set the top-1 bar of a bus's days together and
+    the start-day bar of its faults: a fault counts as dated where the source's own model
+    dates its start in the power or the voltage; the diagnosis's start day is scored on
+    those buses; the headline names the worst source's ceiling beside both."""
+    dates = ["2025-11-03", "2025-11-10", "2025-11-20", "2025-11-30", "2025-12-08", "2025-12-15"]
+
+    def bus(case, right, start=None, since=None, expected="regen_soc_limit"):
+        return {"source": "backward", "case": case, "expected": expected, "right": right,
+                "kind": "bus", "condition_kind": "from_day" if start is not None else "weather",
+                "start_day": start, "since": since, "dates": dates}
+
+    def reading(separable, dated=None):
+        out = {"windows": 600, "max_other_snr": 1.0, "snr": 9.0 if separable else 1.0,
+               "margin": 20.0, "fall": 0.5, "separable": separable}
+        return out if dated is None else {**out, "dated": dated}
+
+    rows = [bus("heat", True, expected="cabin_hvac"),
+            bus("regen0", True, 3, dates[3]), bus("regen1", False, 2, dates[5]),
+            bus("brake", False, 4, dates[0], "outside_library")]
+    ceiling = {("backward", "heat"): {"bms": reading(True), "volt": reading(False),
+                                      "soc": reading(False)},
+               ("backward", "regen0"): {"bms": reading(True, True), "volt": reading(True, False),
+                                        "soc": reading(True, False)},
+               ("backward", "regen1"): {"bms": reading(True, False), "volt": reading(True, True),
+                                        "soc": reading(False, False)},
+               ("backward", "brake"): {"bms": reading(False, False),
+                                       "volt": reading(False, False),
+                                       "soc": reading(False, False)}}
+    bms = bench.scoring.ceiling_figures(rows, ceiling, "bms", "bus")
+    assert bms["held"] == (1.0, 3) and bms["bar"] == 0.95  # every library bus: the bar stands
+    assert bms["start"]["held"] == (pytest.approx(2 / 3), 3)  # the brake's start not dated
+    assert bms["start"]["top1"] == (0.5, 2)  # regen1 dated by the voltage, found 3 days late
+    assert bms["start"]["bar"] == pytest.approx(2 / 3 - 0.05)
+    soc = bench.scoring.ceiling_figures(rows, ceiling, "soc", "bus")
+    assert soc["held"] == (pytest.approx(1 / 3), 3) and soc["start"]["held"] == (0.0, 3)
+    groups = {("bms", "truthsim", "bus"): {"top1_bus": (0.95, 20), "start_day": (1.0, 20)},
+              ("bms", "backward", "bus"): {"top1_bus": (0.67, 3), "start_day": (0.5, 2),
+                                           "ceiling": bms}}
+    bench.scoring.headline(groups, "truthsim")
+    out = capsys.readouterr().out.splitlines()
+    assert "backward's logs hold 100 %, bar then >= 95 %" in next(
+        x for x in out if "6 days together" in x)
+    assert "backward's logs hold 67 %, bar then >= 62 %" in next(
+        x for x in out if "start day within" in x)
+
+
 def test_a_bus_is_diagnosed_from_all_its_days_at_once_with_their_dates(tmp_path,
                                                                        monkeypatch):
     """``diagnose_truth_bus``: one diagnosis of every day's profiles (each with its date),

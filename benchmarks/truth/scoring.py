@@ -240,34 +240,52 @@ def bar_note(key: str, log: str, n: int, unit: str = "days") -> str:
     return f"bar {sign} {shown}; {n} {unit}"
 
 
-def ceiling_figures(rows, ceiling: dict, log: str) -> dict:
-    """On the library days ``ceiling`` read (its rows by (source, case)): the share whose
-    hidden effect the source's own model separates (a BMS log in its power or its voltage),
-    the diagnosis's top-1 on the same days, and the top-1 bar then (the bar, or the ceiling
-    less :data:`CEILING_MARGIN` where that is lower)."""
+def ceiling_figures(rows, ceiling: dict, log: str, kind: str = "day") -> dict:
+    """On the library days (or buses) ``ceiling`` read (its rows by (source, case)): the share
+    whose hidden effect the source's own model separates (a BMS log in its power or its
+    voltage), the diagnosis's top-1 on the same days, and the top-1 bar then (the bar, or the
+    ceiling less :data:`CEILING_MARGIN` where that is lower). On buses also ``start``: of the
+    faults that start on a day, the share whose start the source's own model dates, the
+    diagnosis's start day within the tolerance on those, and the start-day bar then."""
     from benchmarks.ceiling import EITHER, with_either
 
-    def separable(row: dict) -> bool:
+    def reading(row: dict) -> dict:
         read = with_either(row)  # rows of a ceiling without the voltage: the power alone
-        kind = (EITHER if EITHER in read else "bms") if log == "bms" else "soc"
-        return bool(read.get(kind, {}).get("separable"))
+        return read.get((EITHER if EITHER in read else "bms") if log == "bms" else "soc", {})
 
-    days = [r for r in rows if is_library(r["expected"]) and (r["source"], r["case"]) in ceiling]
-    held = [r for r in days if separable(ceiling[(r["source"], r["case"])])]
+    column = 0 if log == "bms" else 1
+    read = [r for r in rows if (r["source"], r["case"]) in ceiling]
+    days = [r for r in read if is_library(r["expected"])]
+    held = [r for r in days if reading(ceiling[(r["source"], r["case"])]).get("separable")]
     held_share, n = share(held, days)
-    bar = BARS["top1"][0 if log == "bms" else 1]
-    return {"held": (held_share, n), "top1": share([r for r in days if r["right"]], days),
-            "bar": min(bar, held_share - CEILING_MARGIN) if n else bar}
+    bar = BARS["top1" if kind == "day" else "top1_bus"][column]
+    out = {"held": (held_share, n), "top1": share([r for r in days if r["right"]], days),
+           "bar": min(bar, held_share - CEILING_MARGIN) if n else bar}
+    if kind == "bus":
+        faults = [r for r in read if r.get("condition_kind") == "from_day"]
+        dated = [r for r in faults if reading(ceiling[(r["source"], r["case"])]).get("dated")]
+        dated_share, n_faults = share(dated, faults)
+        start_bar = BARS["start_day"][column]
+        out["start"] = {"held": (dated_share, n_faults),
+                        "top1": share([r for r in dated if start_day_found(r)], dated),
+                        "bar": min(start_bar, dated_share - CEILING_MARGIN) if n_faults
+                        else start_bar}
+    return out
+
+
+def print_ceiling(c: dict, unit: str = "days") -> None:
+    """The line under a top-1 (or start-day) figure: what the logs hold and the bar then."""
+    if c["held"][1]:
+        line("  what the logs hold: the source's own model", fmt(c["held"][0]),
+             f"the diagnosis on those {unit} {fmt(c['top1'][0])}, bar then >= {fmt(c['bar'])} "
+             f"(the ceiling less 5 points where lower); {c['held'][1]} {unit}")
 
 
 def print_day_figures(f: dict, log: str, workers: int) -> None:
     line("top-1 right over the library's effects", fmt(f["top1"][0]),
          bar_note("top1", log, f["top1"][1]))
-    if "ceiling" in f and f["ceiling"]["held"][1]:
-        c = f["ceiling"]
-        line("  what the logs hold: separable by the source's own model", fmt(c["held"][0]),
-             f"top-1 on those days {fmt(c['top1'][0])}, bar then >= {fmt(c['bar'])} "
-             f"(the ceiling less 5 points where lower); {c['held'][1]} days")
+    if "ceiling" in f:
+        print_ceiling(f["ceiling"])
     line("  the hidden effect ranked first, named or not", fmt(f["ranked_first"][0]),
          f"{f['ranked_first'][1]} days")
     line("a wrong library effect named (all days)", fmt(f["wrong"][0]),
@@ -304,10 +322,14 @@ def print_day_figures(f: dict, log: str, workers: int) -> None:
 def print_bus_figures(f: dict, log: str) -> None:
     line("top-1 right, a bus's days together", fmt(f["top1_bus"][0]),
          bar_note("top1_bus", log, f["top1_bus"][1], "buses"))
+    if "ceiling" in f:
+        print_ceiling(f["ceiling"], "buses")
     start, n = f["start_day"]
     line("faults from a day: start day within +-1 day", fmt(start),
          bar_note("start_day", log, n, "buses") + (" (the diagnosis gives no 'since')"
                                                   if start == NOT_GIVEN else ""))
+    if "ceiling" in f:
+        print_ceiling(f["ceiling"]["start"], "buses")
     line("a wrong library effect named (all buses)", fmt(f["wrong"][0]),
          bar_note("wrong", log, f["wrong"][1], "buses"))
     line("control buses with a verdict", fmt(f["false_alarms"][0]),
@@ -364,12 +386,21 @@ def headline(groups: dict, tune_source: str) -> None:
                 shown = NOT_GIVEN if any(isinstance(v[0], str) for v in values.values()) \
                     else "-"
             tuned = scored.get(tune_source)
-            held = groups.get((log, worst, kind), {}).get("ceiling") if others else None
+            held = held_of(groups.get((log, worst, kind), {}), key) if others else None
             line(f"  {label}", shown, f"{tune_source} (tuning): {fmt(tuned)}; "
                  + bar_note(key, log, sum(v[1] for v in values.values()),
                             "buses" if kind == "bus" else "days")
                  + (f"; {worst}'s logs hold {fmt(held['held'][0])}, bar then >= "
-                    f"{fmt(held['bar'])}" if key == "top1" and held and held["held"][1] else ""))
+                    f"{fmt(held['bar'])}" if held and held["held"][1] else ""))
+
+
+def held_of(figures: dict, key: str) -> dict | None:
+    """The ceiling's reading behind a headline figure: the top-1's of days or buses, the
+    start day's of buses; None for the other figures."""
+    c = figures.get("ceiling")
+    if c is None or key not in ("top1", "top1_bus", "start_day"):
+        return None
+    return c.get("start") if key == "start_day" else c
 
 
 FOOTPRINT_BINS_PCT = (0.0, 0.5, 1.0, 2.0, 5.0, np.inf)
@@ -418,8 +449,8 @@ def report(rows, oracle: bool = False, workers: int = 2, tune_source: str = "tru
            oracle_name: str = "replayed_load", ceiling: dict | None = None) -> dict:
     """Per log type and truth source (the tuning source marked): the confusion matrices and
     figures of single days and of multi-day buses; then the headline. Returns the figures
-    by ``(log, source, kind)``. ``ceiling``: the ceiling's rows by (source, case), read
-    beside the single days' top-1 (:func:`ceiling_figures`)."""
+    by ``(log, source, kind)``. ``ceiling``: the ceiling's rows by (source, case or bus), read
+    beside the top-1 of days and buses and the buses' start day (:func:`ceiling_figures`)."""
     groups: dict = {}
     for log in LOGS:
         for source in sorted({r["source"] for r in rows}):
@@ -444,6 +475,8 @@ def report(rows, oracle: bool = False, workers: int = 2, tune_source: str = "tru
                     print_day_figures(f, log, workers)
                 else:
                     groups[(log, source, kind)] = f = bus_figures(part)
+                    if ceiling:
+                        f["ceiling"] = ceiling_figures(part, ceiling, log, "bus")
                     print("\nFigures against their bars")
                     print_bus_figures(f, log)
     if groups and not oracle:
