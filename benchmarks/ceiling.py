@@ -349,11 +349,12 @@ def ceiling_bus(job) -> dict:
     candidate acting from each day on (a fault's start is free; a rival gets its best start).
     The hidden effect is read at its true start; a fault that starts on a day is **dated**
     where every start more than ``START_TOLERANCE_DAYS`` from the true one fits worse by
-    :data:`SEPARATION`. ``job``: (source name, bus, cache folder or None[, charger share])."""
-    name, bus, cache, charger_share = (*job, False)[:4]
+    :data:`SEPARATION`. ``job``: (source name, bus, cache folder or None[, charger share[,
+    smoke: each day's last :data:`SMOKE_HOURS`]])."""
+    name, bus, cache, charger_share, smoke = (*job, False, False)[:5]
     t0 = time.perf_counter()
     source = Source(name)
-    days = source.module.bus_days(bus)
+    days = [last_hours(c) if smoke else c for c in source.module.bus_days(bus)]
     how = source.module.MULTI_DAY[bus.condition][1] if bus.condition else None
     true_start = bus.start_day or 0
     signals = [day_signals(source, case, Path(cache) if cache else None, charger_share,
@@ -405,12 +406,14 @@ def cases_of(source: Source, smoke: bool, per_effect: int | None,
         limit = controls if case.hidden is None else per_effect
         taken[case.hidden] = taken.get(case.hidden, 0) + 1
         if limit is None or taken[case.hidden] <= limit:
-            if smoke:
-                start = case.start_clock_h + max(case.hours - SMOKE_HOURS, 0.0)
-                case = replace(case, start_clock_h=round(start, 3),
-                               hours=min(case.hours, SMOKE_HOURS))
-            out.append(case)
+            out.append(last_hours(case) if smoke else case)
     return out
+
+
+def last_hours(case):
+    """A smoke run's day: the case's last :data:`SMOKE_HOURS`."""
+    start = case.start_clock_h + max(case.hours - SMOKE_HOURS, 0.0)
+    return replace(case, start_clock_h=round(start, 3), hours=min(case.hours, SMOKE_HOURS))
 
 
 EITHER = "bms|volt"
@@ -526,7 +529,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--per-effect", type=int, default=None)
     parser.add_argument("--controls", type=int, default=None)
     parser.add_argument("--smoke", action="store_true",
-                        help="1 day per effect and 1 control per source, the last 3 h")
+                        help="1 day per effect and 1 control per source (--kind bus: 1 bus "
+                             "per condition and 1 control bus), each day's last 3 h")
     parser.add_argument("--cache", type=Path, default=None,
                         help="the bench's folder of generated days (read where there)")
     parser.add_argument("--rows", type=Path, default=None, help="write each day's row (JSON)")
@@ -558,8 +562,9 @@ def main(argv: list[str] | None = None) -> None:
             continue
         cache = str(args.cache) if args.cache else None
         if args.kind == "bus":
-            jobs += [(name, b, cache, args.charger_share)
-                     for b in source.module.buses(args.per_condition, args.control_buses)
+            jobs += [(name, b, cache, args.charger_share, args.smoke)
+                     for b in source.module.buses(*((1, 1) if args.smoke else (
+                         args.per_condition, args.control_buses)))
                      if not args.effect or b.condition is None or b.condition in args.effect]
         else:
             jobs += [(name, c, cache, args.charger_share)
