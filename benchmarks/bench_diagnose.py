@@ -294,9 +294,9 @@ def main() -> None:
                         "is kept")
     parser.add_argument("--ceiling", type=Path, action="append", default=[],
                         help="with --from-rows: the rows of python -m benchmarks.ceiling "
-                        "--rows FILE (repeatable), read beside the single days' top-1: what "
-                        "the logs hold, and the bar then (the ceiling less 5 points where "
-                        "lower)")
+                        "--rows FILE (repeatable; days and --kind bus), read beside the "
+                        "top-1 of days and buses and the buses' start day: what the logs "
+                        "hold, and the bar then (the ceiling less 5 points where lower)")
     parser.add_argument("--days-per-bus", type=int, default=1,
                         help="out of family: diagnose N days of each case's bus together "
                         "(its day and N - 1 more, the same effect hidden; the truth "
