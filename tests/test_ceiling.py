@@ -146,3 +146,19 @@ def test_a_grade_day_is_separable_on_its_bms_log_and_a_control_day_has_no_effect
         hours=ceiling.SMOKE_HOURS), None))
     for kind in ("bms", "volt", "soc"):
         assert "snr" not in quiet[kind] and quiet[kind]["max_other_snr"] < 3.0, quiet
+
+
+@pytest.mark.slow
+def test_a_regen_limit_bus_is_separable_and_dated_over_its_days():
+    """The truth simulator's first regen-limit bus (its fault from day 2), the last 3 h of
+    each of its six days: in the pack's power and voltage the limit stands far above 3, beats
+    every candidate of another library effect at any start, and only a start within a day of
+    day 2 fits as well."""
+    source = ceiling.Source("truthsim")
+    bus = next(b for b in source.module.buses(1, 0) if b.condition == "regen_soc_limit")
+    assert bus.start_day == 2
+    row = ceiling.ceiling_bus(("truthsim", bus, None, False, True))
+    assert row["days"] == 6 and row["hours"] == pytest.approx(18.0)
+    for kind in ("bms", "volt"):
+        assert row[kind]["separable"] and row[kind]["snr"] > 30.0, row[kind]
+        assert row[kind]["dated"] and abs(row[kind]["best_start"] - 2) <= 1
