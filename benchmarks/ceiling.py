@@ -288,7 +288,8 @@ def day_signals(source: Source, case, cache: Path | None, charger_share: bool,
     return out
 
 
-def separation(y: np.ndarray, basis: np.ndarray, signatures: dict, hidden: str | None) -> dict:
+def separation(y: np.ndarray, basis: np.ndarray, signatures: dict,
+               hidden: str | tuple[str, int] | None) -> dict:
     """One log kind's reading of a hidden effect: its SNR, its margin over every candidate
     that stands for another library effect, its fall and whether it is separable; the largest
     SNR of any other candidate (a control's alarm). ``signatures``: candidate -> column, or
