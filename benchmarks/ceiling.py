@@ -2,7 +2,7 @@
 day's hidden effect against the truth source's own signatures, every bus-to-bus parameter free.
 
     python -m benchmarks.ceiling [--source truthsim] [--per-effect N] [--controls M] [--smoke]
-        [--cache DIR] [--rows FILE] [--workers 2] [--effect E] [--charger-share]
+        [--cache DIR] [--rows FILE [--resume]] [--workers 2] [--effect E] [--charger-share]
     python -m benchmarks.ceiling --kind bus [--per-condition 5] [--control-buses 4] ...
     python -m benchmarks.ceiling --from-rows FILE [--from-rows FILE2 ...]   # report, run nothing
 
@@ -243,9 +243,14 @@ def day_signals(source: Source, case, cache: Path | None, charger_share: bool,
     n = min(len(log), len(y0))
     candidates = {}
     for effect in effects:
-        values = ph if effect == case.hidden else source.draw(effect, plan, chemistry,
-                                                              candidate_seed)
-        candidates[effect] = source.run(plan, base, effect, values, day)
+        if effect == case.hidden:
+            candidates[effect] = source.run(plan, base, effect, ph, day)
+            continue
+        try:
+            candidates[effect] = source.run(plan, base, effect, source.draw(
+                effect, plan, chemistry, candidate_seed), day)
+        except RuntimeError:  # the bus cannot run this day with it (a pack run below its
+            continue  # cells' voltage window): not a rival on this day
     sensitivities = {}
     for param in PARAMS[source.name]:
         if param not in base:
@@ -547,6 +552,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="buses per condition (with --kind bus)")
     parser.add_argument("--control-buses", type=int, default=4,
                         help="control buses per source (with --kind bus)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the rows already in --rows and run only the others")
     parser.add_argument("--from-rows", type=Path, action="append", default=[],
                         help="report the rows of these files (from --rows), running nothing")
     args = parser.parse_args(argv)
@@ -572,6 +579,11 @@ def main(argv: list[str] | None = None) -> None:
                      for c in cases_of(source, args.smoke, per_effect, controls,
                                        tuple(args.effect))]
     rows = []
+    if args.resume and args.rows and args.rows.exists():  # a run stopped part-way
+        rows = json.loads(args.rows.read_text())
+        done = {(r["source"], r["case"]) for r in rows}
+        jobs = [j for j in jobs if (j[0], getattr(j[1], "bus_id", None)
+                                    or getattr(j[1], "case_id", None)) not in done]
     with ProcessPoolExecutor(args.workers) as pool:
         for row in pool.map(ceiling_bus if args.kind == "bus" else ceiling_day, jobs):
             rows.append(row)
