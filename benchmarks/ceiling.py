@@ -294,11 +294,12 @@ def day_signals(source: Source, case, cache: Path | None, charger_share: bool,
 
 
 def separation(y: np.ndarray, basis: np.ndarray, signatures: dict,
-               hidden: str | tuple[str, int] | None) -> dict:
+               hidden: str | tuple[str, int] | None) -> tuple[dict, dict]:
     """One log kind's reading of a hidden effect: its SNR, its margin over every candidate
     that stands for another library effect, its fall and whether it is separable; the largest
-    SNR of any other candidate (a control's alarm). ``signatures``: candidate -> column, or
-    (candidate, start day) -> column on a bus (``hidden`` then (effect, its true start))."""
+    SNR of any other candidate (a control's alarm); and each candidate's fit. ``signatures``:
+    candidate -> column, or (candidate, start day) -> column on a bus (``hidden`` then
+    (effect, its true start))."""
     rss_bus = float(np.sum(basis_residual(y, basis) ** 2))  # the bus's parameters alone
     fits = {key: fit(y, basis, sig) for key, sig in signatures.items()}
 
@@ -320,8 +321,7 @@ def separation(y: np.ndarray, basis: np.ndarray, signatures: dict,
         result.update(snr=own["snr"], margin=float(margin),
                       fall=float(1.0 - own["rss"] / rss_bus) if rss_bus > 0 else 0.0,
                       separable=bool(own["snr"] >= SNR_MIN and margin >= SEPARATION))
-    result["fits"] = fits
-    return result
+    return result, fits
 
 
 def excess(other: dict, own: dict) -> float:
@@ -342,9 +342,7 @@ def ceiling_day(job) -> dict:
            "hours": case.hours, "time_s": 0.0}
     for kind, s in signals.items():
         basis = np.column_stack([*s["moved"].values(), *s["nuisance"]])
-        result = separation(s["y"], basis, s["signatures"], case.hidden)
-        del result["fits"]
-        row[kind] = result
+        row[kind] = separation(s["y"], basis, s["signatures"], case.hidden)[0]
     row["time_s"] = time.perf_counter() - t0
     return row
 
@@ -387,8 +385,7 @@ def ceiling_bus(job) -> dict:
         signatures = {key: s for key, s in signatures.items() if np.abs(s).max() > 0}
         y = stacked([part["y"] for part in parts])
         hidden = (bus.condition, true_start) if bus.condition else None
-        result = separation(y, np.column_stack(shared + per_day), signatures, hidden)
-        fits = result.pop("fits")
+        result, fits = separation(y, np.column_stack(shared + per_day), signatures, hidden)
         if how == "from_day" and hidden in fits:
             own = fits[hidden]
             starts = {k: f for (e, k), f in fits.items() if e == bus.condition}
@@ -454,6 +451,12 @@ def grouped(rows: list[dict]):
             yield name, kind, part, groups
 
 
+def print_controls(name: str, kind: str, snrs: list[float], width: int, note: str) -> None:
+    """A report's line of control days or buses: how many have a candidate at SNR >= 3."""
+    alarms = sum(snr >= SNR_MIN for snr in snrs)
+    print(f"  {name:9s} {kind:8s} {'control':{width}s} {len(snrs):5d} {alarms:>4d} >= 3 {note}")
+
+
 def report(rows: list[dict]) -> None:
     rows = [with_either(r) for r in rows]
     buses = [r for r in rows if "days" in r]
@@ -470,11 +473,9 @@ def report(rows: list[dict]) -> None:
     for name, kind, part, groups in grouped(rows):
         for hidden, group in groups.items():
             if hidden == "control":
-                alarms = sum(g["max_other_snr"] >= SNR_MIN for g in group)
                 snrs = [g["max_other_snr"] for g in group]
-                print(f"  {name:9s} {kind:8s} {'control':18s} {len(group):5d} "
-                      f"{alarms:>4d} >= 3 {np.median(snrs):11.1f} "
-                      f"({min(snrs):6.1f}, {max(snrs):6.1f})  (the largest candidate SNR)")
+                print_controls(name, kind, snrs, 18, f"{np.median(snrs):11.1f} ({min(snrs):6.1f}, "
+                               f"{max(snrs):6.1f})  (the largest candidate SNR)")
                 continue
             scored = [g for g in group if "snr" in g]
             if not scored:
@@ -508,9 +509,8 @@ def report_buses(rows: list[dict]) -> None:
     for name, kind, part, groups in grouped(rows):
         for hidden, group in groups.items():
             if hidden == "control":
-                alarms = sum(g["max_other_snr"] >= SNR_MIN for g in group)
-                print(f"  {name:9s} {kind:8s} {'control':20s} {len(group):5d} "
-                      f"{alarms:>4d} >= 3 (the largest candidate SNR, any start)")
+                print_controls(name, kind, [g["max_other_snr"] for g in group], 20,
+                               "(the largest candidate SNR, any start)")
                 continue
             scored = [g for g in group if "snr" in g]
             if not scored:
@@ -582,8 +582,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.resume and args.rows and args.rows.exists():  # a run stopped part-way
         rows = json.loads(args.rows.read_text())
         done = {(r["source"], r["case"]) for r in rows}
-        jobs = [j for j in jobs if (j[0], getattr(j[1], "bus_id", None)
-                                    or getattr(j[1], "case_id", None)) not in done]
+        jobs = [j for j in jobs if (j[0], j[1].bus_id if args.kind == "bus"
+                                    else j[1].case_id) not in done]
     with ProcessPoolExecutor(args.workers) as pool:
         for row in pool.map(ceiling_bus if args.kind == "bus" else ceiling_day, jobs):
             rows.append(row)
