@@ -35,6 +35,7 @@ from ebus_env.diagnostics.power_fit import (
     sensor_columns,
 )
 from ebus_env.diagnostics.power_path import (
+    BEYOND_SURE,
     MIN_OUTSIDE_KW,
     bound_reached,
     decide,
@@ -186,6 +187,24 @@ def test_a_strength_that_only_scales_its_signature_is_read_from_the_fitted_size(
     assert scaled(bent, 5, 0.3) is None and bound_reached(bent, 5, 0.3) == "upper"
 
 
+def test_a_cabin_whose_best_shape_is_its_top_conductance_at_part_size_is_read_inside_range():
+    """A cabin's power: the fans and the sun, which stay, plus a part its conductance UA
+    scales. Its signatures across UA are near parallel (cosine 0.98-0.99 here, as on a hot
+    day), so a fit on the top UA's signature at 0.65 of its size reads a UA inside the range
+    from the size, not the upper bound; beyond the top's size it is at the bound."""
+    stays = np.array([5.0, 5.0, 6.0, 5.0])
+    per_ua = np.array([2.0, 1.0, 6.0, 3.0]) / 1500.0
+    grid = np.array([400.0, 10.0, 382.5, 755.0, 1127.5, 1500.0])
+    form = Form("cabin_hvac", "missing effect", stays + grid[:, None] * per_ua[None, :],
+                strengths=grid, strength_param="cabin_hvac.ua_w_per_k")
+    sig = form.signatures_w
+    cos = sig @ sig[5] / (np.linalg.norm(sig, axis=1) * np.linalg.norm(sig[5]))
+    assert 0.98 < cos.min() < 0.99  # the regime of the cabin, near parallel
+    value, side = scaled(form, 5, 0.65)
+    assert side is None and 10.0 < value < 400.0
+    assert bound_reached(form, 5, 0.65) is None and bound_reached(form, 5, 1.1) == "upper"
+
+
 def test_an_effect_without_a_strength_has_an_energy_interval_that_reaches_its_own_size():
     """A grade read from a noisy altitude: its signature is the true one plus noise of the
     same size, so the fit's coefficient is about 0.5 (regression dilution) and its energy
@@ -212,6 +231,29 @@ def test_an_effect_without_a_strength_has_an_energy_interval_that_reaches_its_ow
     kept = strength_of(test, scaled_load, grade.signatures_w, y, w, constant, block, 60.0)
     assert kept["energy_kwh"] == pytest.approx(fitted_kwh)
     assert kept["energy_interval_kwh"][1] < truth_kwh  # the fit's own noise alone
+
+
+@pytest.mark.parametrize("true_scale, beyond", [(5.05, False), (8.0, True)])
+def test_a_strength_is_withdrawn_only_where_the_data_ask_beyond_its_range(true_scale, beyond):
+    """A load of scale 0-5 whose log holds it at ``true_scale``: at 5.05 the fit ends at the
+    top of the range, but the block resamples put it beyond in fewer than 95 % of draws (the
+    data do not ask for more than the load can be: named, :data:`BEYOND_SURE`); at 8 in
+    every draw (withdrawn)."""
+    rng = np.random.default_rng(0)
+    n = 2400
+    shape_w = 1e3 * (1.2 + np.sin(np.arange(n) / 50.0))
+    grid = np.array([1.0, 0.0, 1.25, 2.5, 3.75, 5.0])
+    form = Form("aux_schedule", "missing effect", grid[:, None] * shape_w[None, :],
+                strengths=grid, strength_param="aux_schedule.scale")
+    y = true_scale * shape_w + rng.normal(0.0, 2e3, n)
+    none = Nuisance(["c"], np.zeros((n, 1)), np.array([-1.0]), np.array([1.0]))
+    w, block = np.full(n, 1e-6), np.arange(n) // 100
+    test = HeldOut(y, w, none, block).test(form.name, form.signatures_w)
+    assert bound_reached(form, test.choice, test.beta) == "upper"
+    share = strength_of(test, form, form.signatures_w, y, w, none, block, 60.0)["beyond_share"]
+    assert share["lower"] == 0.0
+    assert (share["upper"] >= BEYOND_SURE) is beyond
+    assert beyond or share["upper"] > 0.5
 
 
 def bms_day(effect: str | None, hours: float = 3.0, seed: int = 3, plain: bool = False,

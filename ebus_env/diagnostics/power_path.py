@@ -10,8 +10,9 @@
    (``chi2``), and the decision (:func:`decide`). A load or force outside the library is
    reported from :data:`MIN_OUTSIDE_KW` on, and from a day on only where the days split
    there (:func:`separated`).
-4. The named effect's strength and the energy it adds, with intervals (a strength at an end
-   of its parameter's range withdraws the name: :func:`bound_reached`); from which day it acts
+4. The named effect's strength and the energy it adds, with intervals (a strength the data
+   put beyond an end of its parameter's range withdraws the name: :func:`bound_reached`,
+   :data:`BEYOND_SURE`); from which day it acts
    on several days; the missing power by operating mode; what the logged voltage says of the
    pack's resistance (a cold pack shows there, not in the power).
 
@@ -297,7 +298,7 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     ``signatures`` are the form's on the fitted units; its own cover every unit."""
     total = form.signatures_w.sum(axis=1) * seconds / 3.6e6  # kWh per unit coefficient
     unit = noise_unit(y - test.fitted, w)
-    energies, values = [], []
+    energies, values, sides = [], [], []
 
     def value(k: int, beta: float) -> float:
         by_size = scaled(form, k, beta)
@@ -317,6 +318,7 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
         part = Nuisance(nuisance.names, nuisance.x[rows], nuisance.low, nuisance.high)
         k, beta, *_ = fit_all(y[rows], w[rows], part, signatures[:, rows])
         energies.append(beta * total[k])
+        sides.append(bound_reached(form, k, beta))
         if form.strengths is not None:
             values.append(value(k, beta))
     energy = float(test.beta * total[test.choice])
@@ -327,7 +329,8 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     out = {"energy_kwh": energy,
            "energy_interval_kwh": [float(min(low, energy / spread)),
                                    float(max(high, energy * spread))],
-           "coefficient": test.beta}
+           "coefficient": test.beta,
+           "beyond_share": {side: sides.count(side) / len(sides) for side in ("lower", "upper")}}
     if form.strengths is not None and form.strength_param:
         out["parameters"] = {form.strength_param: float(value(test.choice, test.beta))}
         low, high = np.quantile(values, [0.05, 0.95])
@@ -340,9 +343,13 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     return out
 
 
-PARALLEL = 0.99
+PARALLEL = 0.98
 """The cosine between signatures above which a form's strengths differ only in size (a
-load's scale): its fitted size then says its strength (:func:`scaled`)."""
+load's scale): its fitted size then says its strength (:func:`scaled`). A cabin's signatures
+across its conductance stand at 0.985-1 (the fans' and the sun's share stays while the
+conductance scales the rest), a regen limit's across its SoC fall to 0.5 and below. Set on
+the truth simulator's cooling days: their best shape was the cabin at the top conductance,
+at 0.58-0.66 of its size, which the chosen signature alone read as a bound."""
 
 
 def scaled(form: Form, choice: int, beta: float) -> tuple[float, str | None] | None:
@@ -394,6 +401,24 @@ def bound_reached(form: Form, choice: int, beta: float = 1.0) -> str | None:
     if value <= values.min():
         return "lower"
     return "upper" if value >= values.max() else None
+
+
+BEYOND_SURE = 0.95
+"""The share of block resamples whose fit lies at or beyond the same end of a form's range
+that withdraws a verdict whose strength is at that end (:func:`bound_reached`): the data
+must ask for more than the effect can physically be, not merely reach the end. Set on the
+truth simulator's cooling day 08: its cabin at the least conductance, by 1 % of its size."""
+
+
+def at_end_note(strength: dict) -> str:
+    """What the report adds to a verdict whose strength is at an end of its range, where
+    fewer than :data:`BEYOND_SURE` of the block resamples lie there ('' otherwise)."""
+    side = strength.get("at_end")
+    if not side:
+        return ""
+    return (f"; its strength is at the {side} end of its range, where the data ask beyond it "
+            f"in {100 * strength['beyond_share'][side]:.0f} % of the block resamples "
+            f"({100 * BEYOND_SURE:.0f} % would withdraw it)")
 
 
 def implausible_why(form: Form, test: Test, side: str) -> str:
@@ -585,15 +610,15 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                     and by_label[k].since_day == finding.since_day)
         form = by_label[best.name]
         finding.fall = best.gain
+        finding.strength = strength_of(best, form, form.signatures_w[:, use], missing[use],
+                                       weights[use], nuisance, bins.block[use], BIN_S)
         side = bound_reached(form, best.choice, best.beta)
-        if side:  # withdrawn: no strength to give
-            finding.why = implausible_why(form, best, side)
-            finding.status, finding.verdict = "implausible", None
+        if side and finding.strength["beyond_share"][side] >= BEYOND_SURE:
+            finding.why = implausible_why(form, best, side)  # withdrawn: no strength to give
+            finding.status, finding.verdict, finding.strength = "implausible", None, {}
             finding.since_day, finding.since_interval = 0, (0, 0)
-        else:
-            finding.strength = strength_of(best, form, form.signatures_w[:, use],
-                                           missing[use], weights[use], nuisance,
-                                           bins.block[use], BIN_S)
+        elif side:
+            finding.strength["at_end"] = side
     elif status == "outside library" and tests:
         top = max((t for k, t in credible.items() if reportable(k, by_label, sizes)),
                   key=lambda t: t.chi2)

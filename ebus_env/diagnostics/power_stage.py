@@ -21,7 +21,13 @@ import numpy as np
 from ebus_env.diagnostics.candidates import Strength
 from ebus_env.diagnostics.log_days import service_days
 from ebus_env.diagnostics.power import logs_power
-from ebus_env.diagnostics.power_path import OUTSIDE_MODE, diagnose_power, energy_kwh, label
+from ebus_env.diagnostics.power_path import (
+    OUTSIDE_MODE,
+    at_end_note,
+    diagnose_power,
+    energy_kwh,
+    label,
+)
 from ebus_env.diagnostics.stage06_attribution import Attributed
 from ebus_env.errors import ConfigError
 
@@ -119,7 +125,7 @@ def attributed(power, days: list[str]) -> Attributed:
         t = next(t for t in f.tests if f.forms[t.name].name == f.verdict
                  and f.forms[t.name].since_day == f.since_day)
         why = (f"it removes {100 * t.gain:.0f} % of the missing power on held-out blocks "
-               f"(chi-square {t.chi2:.0f}, {f.needed:.0f} needed)")
+               f"(chi-square {t.chi2:.0f}, {f.needed:.0f} needed){at_end_note(f.strength)}")
     top = f.tests[0] if f.tests else None
     significance = math.sqrt(max(top.chi2, 0.0) / max(f.needed, 1e-12)) if top else 0.0
     clue = f.clue
