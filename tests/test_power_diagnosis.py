@@ -46,6 +46,7 @@ from ebus_env.diagnostics.power_path import (
     scaled,
     separated,
     strength_of,
+    strength_read,
 )
 from ebus_env.io.measured import load_log
 from ebus_env.synthetic import synthetic_log
@@ -191,7 +192,9 @@ def test_a_cabin_whose_best_shape_is_its_top_conductance_at_part_size_is_read_in
     """A cabin's power: the fans and the sun, which stay, plus a part its conductance UA
     scales. Its signatures across UA are near parallel (cosine 0.98-0.99 here, as on a hot
     day), so a fit on the top UA's signature at 0.65 of its size reads a UA inside the range
-    from the size, not the upper bound; beyond the top's size it is at the bound."""
+    from the size, not the upper bound; beyond the top's size it is at the bound. A shape
+    inside the range at a size below the least UA's is read from its shape; at an end only
+    where both readings are."""
     stays = np.array([5.0, 5.0, 6.0, 5.0])
     per_ua = np.array([2.0, 1.0, 6.0, 3.0]) / 1500.0
     grid = np.array([400.0, 10.0, 382.5, 755.0, 1127.5, 1500.0])
@@ -202,7 +205,11 @@ def test_a_cabin_whose_best_shape_is_its_top_conductance_at_part_size_is_read_in
     assert 0.98 < cos.min() < 0.99  # the regime of the cabin, near parallel
     value, side = scaled(form, 5, 0.65)
     assert side is None and 10.0 < value < 400.0
+    assert strength_read(form, 5, 0.65) == (value, None)
     assert bound_reached(form, 5, 0.65) is None and bound_reached(form, 5, 1.1) == "upper"
+    # a shape inside the range at a size below the least conductance's: the shape reads it
+    assert scaled(form, 3, 0.5)[1] == "lower" and strength_read(form, 3, 0.5) == (755.0, None)
+    assert scaled(form, 1, 0.5)[1] == "lower" and bound_reached(form, 1, 0.5) == "lower"
 
 
 def test_an_effect_without_a_strength_has_an_energy_interval_that_reaches_its_own_size():

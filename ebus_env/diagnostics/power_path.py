@@ -289,8 +289,8 @@ def fixed_size(form: Form) -> bool:
 
 def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, block,
                 seconds: float) -> dict:
-    """The form's strength (its parameter's value at the chosen signature, or at the fitted
-    size of a form whose strengths differ only in size: :func:`scaled`) and the energy it
+    """The form's strength (:func:`strength_read`: the chosen signature's, or the fitted
+    size's) and the energy it
     adds over the logs [kWh] (of a :func:`fixed_size` form the interval reaching its own
     size), with 90 % intervals: the strengths whose fit lies within 2.71
     noise units of the best (what the shape of the data allows), refits on blocks resampled
@@ -301,8 +301,7 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
     energies, values, sides = [], [], []
 
     def value(k: int, beta: float) -> float:
-        by_size = scaled(form, k, beta)
-        return form.strengths[k] if by_size is None else by_size[0]
+        return strength_read(form, k, beta)[0]
 
     for k in range(len(signatures)):
         _, beta, _, _, loss = fit_all(y, w, nuisance, signatures[k:k + 1])
@@ -344,17 +343,18 @@ def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, 
 
 
 PARALLEL = 0.98
-"""The cosine between signatures above which a form's strengths differ only in size (a
-load's scale): its fitted size then says its strength (:func:`scaled`). A cabin's signatures
-across its conductance stand at 0.985-1 (the fans' and the sun's share stays while the
-conductance scales the rest), a regen limit's across its SoC fall to 0.5 and below. Set on
-the truth simulator's cooling days: their best shape was the cabin at the top conductance,
-at 0.58-0.66 of its size, which the chosen signature alone read as a bound."""
+"""The cosine between signatures above which a form's strengths differ mostly in size (a
+load's scale): its fitted size then reads its strength too (:func:`scaled`). A cabin's
+signatures across its conductance stand at 0.985-1 (the fans' and the sun's share stays while
+the conductance scales the rest), a regen limit's across its SoC fall to 0.5 and below."""
+SAME_SHAPE = 0.999
+"""The cosine above which signatures differ only in size: the one chosen among them is
+chance, and the size alone reads the strength."""
 
 
 def scaled(form: Form, choice: int, beta: float) -> tuple[float, str | None] | None:
-    """For a form whose signatures differ only in size across its strengths, the strength whose
-    signature is the fitted power ``beta`` times the chosen one, interpolated in the
+    """For a form whose signatures differ mostly in size across its strengths, the strength
+    whose signature is the fitted power ``beta`` times the chosen one, interpolated in the
     signatures' sizes, and the end of the range the fit lies beyond ("lower", "upper"; None
     inside). None for a form whose shape changes with its strength (a regen limit's SoC),
     where the chosen signature says the strength.
@@ -367,13 +367,9 @@ def scaled(form: Form, choice: int, beta: float) -> tuple[float, str | None] | N
     sig = np.asarray(form.signatures_w, float)
     ref = sig[choice]
     norm = float(np.linalg.norm(ref))
-    if norm <= 0.0:
+    if norm <= 0.0 or least_cosine(form, choice) < PARALLEL:
         return None
     size = sig @ ref / norm**2  # each signature's size, the chosen one's 1
-    lengths = np.linalg.norm(sig, axis=1)
-    on = lengths > 1e-9 * norm
-    if np.any(np.abs(sig[on] @ ref) / (lengths[on] * norm) < PARALLEL):
-        return None
     values = np.asarray(form.strengths, float)
     order = np.argsort(size)
     size, values = size[order], values[order]
@@ -387,27 +383,55 @@ def scaled(form: Form, choice: int, beta: float) -> tuple[float, str | None] | N
     return float(np.interp(beta, size, values)), None
 
 
+def least_cosine(form: Form, choice: int) -> float:
+    """The least cosine between the chosen signature and the form's others (1 for one of a
+    single shape)."""
+    sig = np.asarray(form.signatures_w, float)
+    ref = sig[choice]
+    norm = float(np.linalg.norm(ref))
+    lengths = np.linalg.norm(sig, axis=1)
+    on = lengths > 1e-9 * norm
+    if norm <= 0.0 or not on.any():
+        return 1.0
+    return float(np.min(np.abs(sig[on] @ ref) / (lengths[on] * norm)))
+
+
+def strength_read(form: Form, choice: int, beta: float = 1.0) -> tuple[float, str | None]:
+    """The strength a form was fitted at (``choice``, with coefficient ``beta``) and the end
+    of its parameter's declared range it lies at or beyond (None inside; the signatures span
+    the range, ends included). Two readings: the chosen signature's own strength (its shape)
+    and, for signatures that differ mostly in size, the fitted size (:func:`scaled`). Where
+    the shapes bend (a cabin: the shape follows the conductance, the size the energy), the
+    form is at an end only where both readings are, and the strength is the size's reading
+    where that is inside, else the shape's: on the truth simulator's cooling days the best
+    shape was the top conductance at 0.58-0.66 of its size, and on FASTSim's (whose air
+    conditioner draws half the library's power for the same heat) a shape inside the range
+    at a size below the least conductance's."""
+    values = np.asarray(form.strengths, float)
+    shape_value = float(values[choice])
+    shape_side = ("lower" if shape_value <= values.min() else
+                  "upper" if shape_value >= values.max() else None)
+    by_size = scaled(form, choice, beta)
+    if by_size is None:
+        return shape_value, shape_side
+    if by_size[1] is None or least_cosine(form, choice) >= SAME_SHAPE:
+        return by_size
+    return (by_size if by_size[1] == shape_side else (shape_value, None))
+
+
 def bound_reached(form: Form, choice: int, beta: float = 1.0) -> str | None:
-    """``"lower"`` or ``"upper"`` where the strength a form was fitted at (``choice``, with
-    coefficient ``beta``: :func:`scaled`) is an end of its parameter's declared range (its
-    signatures span the range, ends included), else None."""
+    """``"lower"`` or ``"upper"`` where the strength a form was fitted at is an end of its
+    parameter's declared range (:func:`strength_read`), else None."""
     if form.strengths is None or len(form.strengths) < 3:
         return None
-    by_size = scaled(form, choice, beta)
-    if by_size is not None:
-        return by_size[1]
-    values = np.asarray(form.strengths, float)
-    value = values[choice]
-    if value <= values.min():
-        return "lower"
-    return "upper" if value >= values.max() else None
+    return strength_read(form, choice, beta)[1]
 
 
 BEYOND_SURE = 0.95
 """The share of block resamples whose fit lies at or beyond the same end of a form's range
 that withdraws a verdict whose strength is at that end (:func:`bound_reached`): the data
-must ask for more than the effect can physically be, not merely reach the end. Set on the
-truth simulator's cooling day 08: its cabin at the least conductance, by 1 % of its size."""
+must ask for more than the effect can physically be, not merely reach the end (the one-sided
+level of the 90 % intervals the strength and energy are given with)."""
 
 
 def at_end_note(strength: dict) -> str:
@@ -428,8 +452,7 @@ def implausible_why(form: Form, test: Test, side: str) -> str:
     :mod:`~ebus_env.diagnostics.stage06_attribution`, without a re-calibration to settle
     it: here the bus's parameters are already free)."""
     values = np.asarray(form.strengths, float)
-    by_size = scaled(form, test.choice, test.beta)
-    value = values[test.choice] if by_size is None else by_size[0]
+    value = strength_read(form, test.choice, test.beta)[0]
     return (f"the shape of {label(form)} fits (chi-square {test.chi2:.0f}), the strength is "
             f"implausible: {form.strength_param} ends at its {side} bound, "
             f"{value:.4g} (range {values.min():.4g} to {values.max():.4g}), "
