@@ -290,12 +290,13 @@ def fixed_size(form: Form) -> bool:
 def strength_of(test: Test, form: Form, signatures: np.ndarray, y, w, nuisance, block,
                 seconds: float) -> dict:
     """The form's strength (:func:`strength_read`: the chosen signature's, or the fitted
-    size's) and the energy it
-    adds over the logs [kWh] (of a :func:`fixed_size` form the interval reaching its own
-    size), with 90 % intervals: the strengths whose fit lies within 2.71
-    noise units of the best (what the shape of the data allows), refits on blocks resampled
-    with replacement (what its noise allows) and, for the energy, :data:`FORM_SPREAD`.
-    ``signatures`` are the form's on the fitted units; its own cover every unit."""
+    size's) and the energy it adds over the logs [kWh] (of a :func:`fixed_size` form the
+    interval reaching its own size), with 90 % intervals: the strengths whose fit lies within
+    2.71 noise units of the best (what the shape of the data allows), refits on blocks
+    resampled with replacement (what its noise allows) and, for the energy,
+    :data:`FORM_SPREAD`; and the share of those refits at or beyond each end of the range
+    (``beyond_share``). ``signatures`` are the form's on the fitted units; its own cover
+    every unit."""
     total = form.signatures_w.sum(axis=1) * seconds / 3.6e6  # kWh per unit coefficient
     unit = noise_unit(y - test.fitted, w)
     energies, values, sides = [], [], []
@@ -404,7 +405,7 @@ def strength_read(form: Form, choice: int, beta: float = 1.0) -> tuple[float, st
     the shapes bend (a cabin: the shape follows the conductance, the size the energy), the
     form is at an end only where both readings are, and the strength is the size's reading
     where that is inside, else the shape's: on the truth simulator's cooling days the best
-    shape was the top conductance at 0.58-0.66 of its size, and on FASTSim's (whose air
+    shape was the top conductance at half to two thirds of its size, and on FASTSim's (whose air
     conditioner draws half the library's power for the same heat) a shape inside the range
     at a size below the least conductance's."""
     values = np.asarray(form.strengths, float)
