@@ -302,8 +302,9 @@ def main() -> None:
                         "(its day and N - 1 more, the same effect hidden; the truth "
                         "simulator's days)")
     parser.add_argument("--power-domain", action="store_true",
-                        help="out of family: BMS logs second by second (diagnose --domain "
-                        "power), not in SoC windows")
+                        help="out of family: the power domain (diagnose --domain power): "
+                        "BMS logs second by second, SoC-only logs by the charge the SoC "
+                        "counts in each window")
     args = parser.parse_args()
     if args.days_per_bus < 1:
         parser.error(f"--days-per-bus must be 1 or more, not {args.days_per_bus}")

@@ -83,7 +83,7 @@ class Job:
     reference: bool = False
     known_mass: bool = False
     days: int = 1
-    domain: str = "soc"  # a BMS log's: "power" reads it second by second
+    domain: str = "soc"  # "power": BMS logs second by second, SoC-only logs by window
 
     @property
     def key(self) -> tuple[str, str, str, str]:
@@ -301,7 +301,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
              CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)] if expected is None
              else expected)
     # a BMS log in the power domain: second by second
-    power = isinstance(job, Job) and job.domain == "power" and current_voltage and not reference
+    power = isinstance(job, Job) and job.domain == "power" and not reference
     if power:  # the bus fitted to the logged power; each library candidate's held-out fall
         d = diagnose(bus, profiles, freedom=freedom, domain="power")
     else:
@@ -366,7 +366,7 @@ def diagnose_truth_bus(job: Job) -> dict:
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     t0, cpu0 = time.perf_counter(), time.process_time()
     # a BMS log in the power domain: second by second, the bus fitted to the logged power
-    power = job.domain == "power" and job.log == "bms"
+    power = job.domain == "power"
     d = diagnose(bus, profiles, calibrate=not power, domain="power" if power else "soc")
     return {"cpu_s": time.process_time() - cpu0, "log": job.log, "kind": "bus",
             "domain": d.domain,
@@ -541,8 +541,9 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
     ``logs``: the log types (default both; ``current_voltage`` alone: BMS logs only, as
     before); ``kinds``: single days and/or multi-day buses (the oracle, reference,
     known-mass and days-per-bus variants are single days'); ``generate_only``: make and
-    cache the days, diagnose nothing; ``power_domain``: BMS logs second by second
-    (``diagnose(domain="power")``), not in SoC windows."""
+    cache the days, diagnose nothing; ``power_domain``: the power path
+    (``diagnose(domain="power")``): BMS logs second by second, SoC-only logs by the charge
+    their SoC counts in each window, not the SoC windows' attribution."""
     from concurrent.futures import ProcessPoolExecutor
     from functools import partial
     from multiprocessing import get_context
@@ -559,7 +560,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
           + (", the true curb mass held (--known-curb-mass)" if known_mass else "")
           + (f", {days} days of each case's bus diagnosed together (--days-per-bus)"
              if days > 1 else "")
-          + ("; BMS logs second by second (--power-domain)" if power_domain else "")
+          + ("; the power domain (--power-domain)" if power_domain else "")
           + (f"; shard {shard[0]} of {shard[1]}" if shard else ""))
     if smoke and not (oracle or reference or known_mass or days > 1):  # the CI subset
         listed = [j for j in ci_jobs(folder, sources) if j.log in logs and j.kind in kinds]
@@ -567,7 +568,7 @@ def out_of_family(folder: Path, smoke: bool, workers: int = 2,
         listed = jobs(folder, smoke, sources, logs, kinds, per_effect, controls, effects,
                       per_condition, control_buses, oracle, reference, known_mass, days)
     if power_domain:
-        listed = [replace(j, domain="power") if j.log == "bms" else j for j in listed]
+        listed = [replace(j, domain="power") for j in listed]
     todo = shard_of(listed, shard)
     rows = []
     if resume and rows_path is not None and rows_path.exists():  # the jobs already done

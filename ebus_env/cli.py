@@ -243,9 +243,10 @@ def diagnose(
         "--soc-only", help="Diagnose from SoC alone where the log has the pack's current "
         "too (see docs/validation.md: run both)")] = False,
     domain: Annotated[str, typer.Option(
-        help="soc: SoC windows; power: BMS logs (the pack's current and voltage) second by "
-             "second, several days of a bus with the day a change started; auto: power where "
-             "the logs allow")] = "soc",
+        help="soc: SoC windows; power: the bus fitted to the pack's power, BMS logs (the "
+             "pack's current and voltage) second by second and SoC-only logs by the charge "
+             "the SoC counts in each 5-min window, several days of a bus with the day a "
+             "change started; auto: power on BMS logs")] = "soc",
     config: Annotated[str | None, typer.Option(
         help="Calibration config for --calibrate/--add (configs/calibration/NAME.yaml): its "
              "params free in place of the paper's, its ranges, fixed values and iSOPT "

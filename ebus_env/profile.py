@@ -142,6 +142,12 @@ class Profile:
             new[name] = np.broadcast_to(np.asarray(value, dtype=float), (self.n_steps,)).copy()
         return self._copy(channels=new)
 
+    def with_measured(self, **signals) -> Profile:
+        """A copy with measured signals replaced or added (arrays of ``n_steps`` rows)."""
+        return self._copy(measured={**self.measured, **{
+            k: np.asarray(v, dtype=float) for k, v in signals.items()}},
+            samples={k: v for k, v in self.samples.items() if k not in signals})
+
     def without_measured(self, *names: str) -> Profile:
         """A copy without the measured signals ``names`` (the model's inputs unchanged)."""
         return self._copy(measured={k: v for k, v in self.measured.items() if k not in names},

@@ -663,16 +663,24 @@ def test_a_folder_of_logs_reads_as_its_days_in_order(tmp_path):
         logs_in([tmp_path / "empty"])
 
 
-def test_the_power_domain_needs_the_current_and_voltage_and_a_known_domain(tmp_path):
-    """``domain="power"`` on a log without the pack's current and voltage is an error that
-    names the log and the columns; an unknown domain is refused."""
+def test_the_power_domain_needs_the_current_and_voltage_or_the_soc_and_a_known_domain(
+        tmp_path):
+    """``domain="power"`` reads a SoC-only log by window, and a log with neither the pack's
+    current and voltage nor the SoC is an error that names the log and the columns; an
+    unknown domain is refused."""
     from ebus_env.diagnostics import diagnose
+    from ebus_env.diagnostics.soc_power import WINDOW_S
     from ebus_env.errors import ConfigError
+    from ebus_env.profile import Profile
 
     case, frame = bms_day(None, hours=0.5)
     soc_only = load(frame.drop(columns=["battery_current_a", "battery_voltage_v"]), tmp_path,
                     "soc_only")
-    with pytest.raises(ConfigError, match="soc_only lack.*battery_current_a"):
-        diagnose(hidden.baseline_bus(case), soc_only, domain="power")
+    bus = hidden.baseline_bus(case)
+    run = diagnose_power(bus, soc_only, [0])
+    assert run.bins.seconds == WINDOW_S and run.logger_lag_s is None
+    bare = Profile({"speed_ref_mps": np.zeros(3000)}, hidden.DT_S, name="bare")
+    with pytest.raises(ConfigError, match="bare lack.*battery_current_a.*soc_frac"):
+        diagnose(bus, [bare], domain="power")
     with pytest.raises(ConfigError, match="domain='watts' is not one of soc, power, auto"):
-        diagnose(hidden.baseline_bus(case), soc_only, domain="watts")
+        diagnose(bus, soc_only, domain="watts")

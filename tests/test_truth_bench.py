@@ -93,17 +93,13 @@ def test_the_power_domain_dates_a_weak_cell_group_from_the_logged_voltage(tmp_pa
     assert low <= row["truth"]["static_rcd.rcd_frac"] <= high
 
 
-def _bms_logs():
-    return [p for p in _ci_jobs() if p.values[0] is None or p.values[0].log == "bms"]
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("job", _bms_logs())
-def test_the_power_domain_names_no_wrong_effect_on_the_ci_subsets_bms_logs(job,
-                                                                          tmp_path_factory):
-    """The CI subset's BMS days and buses read second by second
-    (``diagnose(domain="power")``): it may abstain, but names no wrong effect, and none on a
-    control day or for a force outside the library; a bus's six days keep their dates."""
+@pytest.mark.parametrize("job", _ci_jobs())
+def test_the_power_domain_names_no_wrong_effect_on_the_ci_subset(job, tmp_path_factory):
+    """The CI subset's days and buses in the power domain (``diagnose(domain="power")``):
+    BMS logs second by second, SoC-only logs by the SoC's count in each window. It may
+    abstain, but names no wrong effect, and none on a control day or for a force outside the
+    library; a bus's six days keep their dates."""
     folder = tmp_path_factory.getbasetemp() / "truth-days"
     folder.mkdir(exist_ok=True)
     row = bench.run_job(replace(job, folder=str(folder), domain="power"), ladder=False)

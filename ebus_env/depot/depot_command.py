@@ -49,9 +49,10 @@ def register(app: typer.Typer) -> None:
         calibrate: Annotated[bool, typer.Option(
             help="Calibrate each bus's own parameters on its days before diagnosing")] = True,
         domain: Annotated[str, typer.Option(
-            help="soc: SoC windows; power: the pack's logged current and voltage second by "
-                 "second, each bus fitted to its power over its days, with the day a change "
-                 "started; auto: power where every day's log has them")] = "soc",
+            help="soc: SoC windows; power: each bus fitted to its pack's power over its "
+                 "days (the logged current and voltage second by second, or the SoC's count "
+                 "in each 5-min window), with the day a change started; auto: power where "
+                 "every day's log has the current and voltage")] = "soc",
         no_diagnose: Annotated[bool, typer.Option(
             "--no-diagnose", help="Only cut the folder into bus-day logs")] = False,
     ):

@@ -102,8 +102,8 @@ def diagnose_bus(bus_config, days: list[BusDay], *, calibrate: bool, gaps: str, 
     """The diagnosis of one bus over its service days (their canonical logs read with every
     check of :func:`~ebus_env.io.measured.load_log`): the library's
     :func:`~ebus_env.diagnostics.diagnose` on the days' profiles, each keeping its date, in
-    ``domain`` (``power``: the bus fitted to its logged power second by second, which takes
-    the place of the SoC calibration)."""
+    ``domain`` (``power``: the bus fitted to its logged power, second by second or by the
+    SoC's count in each window, which takes the place of the SoC calibration)."""
     from ebus_env.diagnostics import diagnose
     from ebus_env.io.measured import load_log
 

@@ -167,7 +167,7 @@ class Bins:
     hour: np.ndarray  # time of day at its middle [h]
     fit: np.ndarray  # used in the fits: past the start-up, off a charger or at its rating
     mode_share: np.ndarray  # (n_bins, len(MODES)) share of its seconds in each mode
-    seconds: int  # BIN_S in seconds (rows per bin)
+    seconds: int  # a bin's length [s] (rows per bin): BIN_S, a SoC-only log's window
     lag: int = 0  # the logger's timing in model steps (:func:`logger_lag`)
 
     def __len__(self) -> int:
@@ -213,13 +213,14 @@ charger at its rating where the pack takes in no more than the least share less
 
 
 def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0,
-              delivered_frac: float = 1.0) -> Bins:
-    """Bins of every profile from the model's run along it (``runs``: one ``(n_seconds,
-    len(TRACE))`` per profile, made with the logger's ``lag`` and a charger delivering
-    ``delivered_frac`` of its rating): their modes, and whether each enters the fits. A bin
+              delivered_frac: float = 1.0, bin_s: float = BIN_S) -> Bins:
+    """Bins of ``bin_s`` of every profile from the model's run along it (``runs``: one
+    ``(n_seconds, len(TRACE))`` per profile, made with the logger's ``lag`` and a charger
+    delivering ``delivered_frac`` of its rating): their modes, and whether each enters the
+    fits. A bin
     on a charger enters only where both the model's charger and the logged power show the
     charger at its rating the whole bin (the loads then show as they do standing)."""
-    k = int(BIN_S)
+    k = int(bin_s)
     cols = {name: [] for name in ("profile", "first", "day", "block", "hour", "fit")}
     shares = []
     block0 = 0
@@ -243,7 +244,9 @@ def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0,
         # a charger at its rating gives a steady power; a pack in its CV phase takes less
         # and less
         full &= np.ptp(logged[:n_bins * k].reshape(n_bins, k), axis=1) < STEADY_W
-        fit = (~on.any(axis=1) | full) & (first >= START_UP_S)
+        # a SoC-only log's window on a charger counts the BMS's capacity error on the
+        # charger's whole power, and its recalibration at the top: left out
+        fit = (~on.any(axis=1) | (full & (k <= BIN_S))) & (first >= START_UP_S)
         cols["profile"].append(np.full(n_bins, i))
         cols["first"].append(first)
         cols["day"].append(np.full(n_bins, day_of[i]))

@@ -1,4 +1,6 @@
-"""The diagnosis of BMS logs, in the power domain (see :mod:`ebus_env.diagnostics.power`).
+"""The diagnosis in the power domain: BMS logs second by second (see
+:mod:`ebus_env.diagnostics.power`), SoC-only logs by the charge their SoC counts in each window
+(:mod:`ebus_env.diagnostics.soc_power`).
 
 1. The pack from the log (its capacity from the counted charge), the bus-to-bus parameters
    and the sensor's terms fitted to the logged power (:mod:`~ebus_env.diagnostics.power_fit`),
@@ -39,6 +41,7 @@ from ebus_env.diagnostics.power import (
     log_power,
     log_voltage,
     logger_lag,
+    logs_power,
     make_bins,
 )
 from ebus_env.diagnostics.power_candidates import (
@@ -53,6 +56,7 @@ from ebus_env.diagnostics.power_fit import (
     pack_values,
     resistance_check_at,
 )
+from ebus_env.diagnostics.soc_power import WINDOW_S, as_power_logs
 from ebus_env.diagnostics.voltage import (
     AGEING,
     MIN_CHANGE,
@@ -87,14 +91,23 @@ OUTSIDE_MODE = {"load while standing": "idle", "load while accelerating": "accel
 the power it misses."""
 
 
-def needed(tried: int) -> float:
-    """The held-out chi-square a candidate needs when ``tried`` were tested."""
-    return float(NULL_SCALE * chi2_dist.isf(ALPHA / max(tried, 1), 1))
+NULL_SCALE_SOC = 1.0
+""":data:`NULL_SCALE` for a SoC-only log read by window (:mod:`.soc_power`): there the SoC's
+steps, not the two models' structure, are most of a window's missing power (set on the
+tuning source's control days as :data:`NULL_SCALE` was)."""
 
 
-APART = float(NULL_SCALE * chi2_dist.isf(0.05, 1))
-"""How much better (in noise units, held out) one candidate must predict than another to be
-preferred to it: a 5 % test at the same scale."""
+def needed(tried: int, scale: float = NULL_SCALE) -> float:
+    """The held-out chi-square a candidate needs when ``tried`` were tested (``scale``: the
+    log's null scale)."""
+    return float(scale * chi2_dist.isf(ALPHA / max(tried, 1), 1))
+
+
+def apart(scale: float = NULL_SCALE) -> float:
+    """How much better (in noise units, held out) one candidate must predict than another to
+    be preferred to it: a 5 % test at the log's null scale."""
+    return float(scale * chi2_dist.isf(0.05, 1))
+
 
 
 @dataclass
@@ -118,7 +131,8 @@ class Finding:
 def class_weights(residual: np.ndarray, bins, use: np.ndarray) -> np.ndarray:
     """1 / variance of each bin from the robust scatter (MAD) of the residual in its dominant
     operating mode; a mode with too few bins to say takes the scatter of all bins."""
-    mode = np.argmax(bins.mode_share, axis=1)
+    # a SoC-only log's window mixes the modes, and its noise is the SoC's steps in any mode
+    mode = np.argmax(bins.mode_share, axis=1) if bins.seconds <= BIN_S else np.zeros(len(bins))
     floor = 50.0  # W: a bin is never trusted beyond the log's resolution
 
     def sigma(r):
@@ -151,13 +165,14 @@ def label(form: Form) -> str:
     return form.name if form.since_day == 0 else f"{form.name} from day {form.since_day}"
 
 
-def since(tests: dict[str, Test], forms: dict[str, Form], name: str) -> tuple[int, tuple]:
-    """The day a form acts from (0: every day) and the days within :data:`APART` of the best,
+def since(tests: dict[str, Test], forms: dict[str, Form], name: str,
+          scale: float = NULL_SCALE) -> tuple[int, tuple]:
+    """The day a form acts from (0: every day) and the days within :func:`apart` of the best,
     among the forms of ``name`` on every day and from each day on."""
     mine = {forms[k].since_day: t for k, t in tests.items() if forms[k].name == name}
     best = min(mine.values(), key=lambda t: t.held_out_loss)
     day = next(d for d, t in mine.items() if t is best)
-    close = [d for d, t in mine.items() if margin(best, t) <= APART]
+    close = [d for d, t in mine.items() if margin(best, t) <= apart(scale)]
     return day, (min(close), max(close))
 
 
@@ -213,18 +228,19 @@ def reportable(name: str, forms: dict[str, Form], sizes_kw: dict[str, float]) ->
 
 
 def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, float],
-           tried: int | None = None) -> tuple[str, str | None, str, str | None]:
+           tried: int | None = None, scale: float = NULL_SCALE
+           ) -> tuple[str, str | None, str, str | None]:
     """(status, the named effect or None, why, the operating-mode clue or None).
 
     A library effect is named when its held-out chi-square passes :func:`needed` for the
     number of candidates tried, no other library effect that passes comes within
-    :data:`APART` of it, and no form outside the library predicts clearly better (then the
+    :func:`apart` of it, and no form outside the library predicts clearly better (then the
     library's effect explains only part). Where no library effect passes and a form outside
     it does, no library effect explains the missing power, and the form says where it goes
     missing. A form outside the library counts from :data:`MIN_OUTSIDE_KW` of its size
     (``sizes_kw``: :func:`outside_kw` by test name). ``tried``: the candidates tested
-    (default: those in ``tests``)."""
-    threshold = needed(tried or len(tests))
+    (default: those in ``tests``); ``scale``: the log's null scale."""
+    threshold, far = needed(tried or len(tests), scale), apart(scale)
     ranked = sorted(tests.values(), key=lambda t: -t.chi2)
     library = [t for t in ranked if forms[t.name].kind != "outside"]
     outside = [t for t in ranked if reportable(t.name, forms, sizes_kw)]
@@ -240,13 +256,13 @@ def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, f
         best.sort(key=lambda t: t.held_out_loss)
         top = best[0]
         name = forms[top.name].name
-        if len(best) > 1 and margin(top, best[1]) < APART:
+        if len(best) > 1 and margin(top, best[1]) < far:
             other = forms[best[1].name].name
             return "tie", None, (
                 f"{name} and {other} both explain the missing power on held-out blocks "
                 f"(chi-square {top.chi2:.0f} and {best[1].chi2:.0f}, {threshold:.0f} needed) and "
                 "neither predicts them clearly better: the data cannot tell them apart"), None
-        if best_out is not None and margin(best_out, top) >= APART:
+        if best_out is not None and margin(best_out, top) >= far:
             form = forms[best_out.name]
             return "outside library", None, (
                 f"{name} explains part of the missing power (chi-square {top.chi2:.0f}), but "
@@ -270,9 +286,10 @@ def decide(tests: dict[str, Test], forms: dict[str, Form], sizes_kw: dict[str, f
                            "explains these data"), None
 
 
-def energy_kwh(test: Test, form: Form) -> float:
-    """The energy a tested form adds over the logs at its fitted strength [kWh]."""
-    return float(test.beta * form.signatures_w[test.choice].sum() * BIN_S / 3.6e6)
+def energy_kwh(test: Test, form: Form, seconds: float) -> float:
+    """The energy a tested form adds over the logs at its fitted strength [kWh] (``seconds``:
+    a bin's length)."""
+    return float(test.beta * form.signatures_w[test.choice].sum() * seconds / 3.6e6)
 
 
 def fixed_size(form: Form) -> bool:
@@ -576,27 +593,40 @@ class PowerRun:
         return self.fit.table(self.logged_w, self.bins.fit, self.weights)
 
     @property
-    def logger_lag_s(self) -> float:
-        """Where a logged second starts against its time stamp [s] (:func:`logger_lag`)."""
+    def logger_lag_s(self) -> float | None:
+        """Where a logged second starts against its time stamp [s] (:func:`logger_lag`); None
+        on SoC-only logs, read by window."""
+        if self.bins.seconds > BIN_S:
+            return None
         return self.bins.lag * self.profiles[0].dt_s
 
 
 def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=None) -> PowerRun:
-    """The power path on BMS ``profiles`` (``day_of``: each profile's day, 0 first)."""
+    """The power path on ``profiles`` (``day_of``: each profile's day, 0 first): BMS logs
+    in bins of :data:`BIN_S`; where a log has no pack current, the SoC's count in windows of
+    :data:`~ebus_env.diagnostics.soc_power.WINDOW_S` (:mod:`~ebus_env.diagnostics.soc_power`),
+    without the logged voltage's evidence."""
     say = say or (lambda text: None)
     fixed = dict(fixed or {})
     model = bus.build(profiles[0].dt_s)
-    pack = {k: v for k, v in pack_values(model, profiles).items() if k not in fixed}
+    bms = all(logs_power(p) for p in profiles)
+    pack = {k: v for k, v in pack_values(model, profiles).items() if k not in fixed} \
+        if bms else {}
     start = {**pack, **fixed}
-    resistance = pack_resistance(model, profiles, model.param_vector(model.carry_over(start)))
-    pack.update({k: v for k, v in resistance.items() if k not in fixed})
-    start = {**pack, **fixed}
+    if bms:
+        resistance = pack_resistance(model, profiles,
+                                     model.param_vector(model.carry_over(start)))
+        pack.update({k: v for k, v in resistance.items() if k not in fixed})
+        start = {**pack, **fixed}
     params = model.param_vector(model.carry_over(start))
-    lag = logger_lag(model, profiles, params)
+    if not bms:  # the SoC's count in each window, as a power log (mod:`.soc_power`)
+        profiles = as_power_logs(model, profiles, params)
+    lag = logger_lag(model, profiles, params) if bms else 0
     first = anchored_runs(model, profiles, params, TRACE, lag)
     delivered = model.equivalent(CHARGER_SHARE)
     bins = make_bins(profiles, [r[0] for r in first], day_of, lag,
-                     params[model.param_index(delivered)] if delivered else 1.0)
+                     params[model.param_index(delivered)] if delivered else 1.0,
+                     BIN_S if bms else WINDOW_S)
     logged = bins.means(log_power(profiles))
     voltage = bins.means(log_voltage(profiles))
     use = bins.fit
@@ -624,18 +654,19 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
                              by_label[k].since_day, missing, weights, bins, use)}
     sizes = {k: outside_kw(t, by_label[k].signatures_w[t.choice][use], held.null_fitted)
              for k, t in tests.items() if by_label[k].kind == "outside"}
-    status, verdict, why, clue = decide(credible, by_label, sizes, len(tests))
+    scale = NULL_SCALE if bms else NULL_SCALE_SOC
+    status, verdict, why, clue = decide(credible, by_label, sizes, len(tests), scale)
     finding = Finding(status, verdict, why, 0, (0, 0), clue,
                       sorted(tests.values(), key=lambda t: -t.chi2), by_label,
-                      needed(len(tests)))
+                      needed(len(tests), scale))
     if verdict is not None:
-        finding.since_day, finding.since_interval = since(tests, by_label, verdict)
+        finding.since_day, finding.since_interval = since(tests, by_label, verdict, scale)
         best = next(t for k, t in tests.items() if by_label[k].name == verdict
                     and by_label[k].since_day == finding.since_day)
         form = by_label[best.name]
         finding.fall = best.gain
         finding.strength = strength_of(best, form, form.signatures_w[:, use], missing[use],
-                                       weights[use], nuisance, bins.block[use], BIN_S)
+                                       weights[use], nuisance, bins.block[use], bins.seconds)
         side = bound_reached(form, best.choice, best.beta)
         if side and finding.strength["beyond_share"][side] >= BEYOND_SURE:
             finding.why = implausible_why(form, best, side)  # withdrawn: no strength to give
@@ -647,12 +678,13 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
         top = max((t for k, t in credible.items() if reportable(k, by_label, sizes)),
                   key=lambda t: t.chi2)
         finding.since_day, finding.since_interval = since(credible, by_label,
-                                                          by_label[top.name].name)
+                                                          by_label[top.name].name, scale)
     finding.modes = mode_table(missing, weights, bins, use)
     say("the pack's resistance from the logged voltage")
     named = (finding.verdict, finding.strength.get("parameters", {})) \
         if finding.status == "named" else None
-    check, moved = voltage_evidence(model, profiles, fit.params, effects, day_of, named)
+    check, moved = voltage_evidence(model, profiles, fit.params, effects, day_of, named) \
+        if bms else (None, 0.0)
     if check is not None and moved >= MIN_CHANGE and finding.status == "named":
         # the two signals are independent, and the voltage is the pack's own measure
         why = steady_pack_why(finding, moved, check) if not check.changes \
@@ -688,7 +720,8 @@ def summary(run: PowerRun) -> dict:
             "since_interval": f.since_interval, "clue": f.clue, "needed": f.needed,
             "why": f.why,
             "top": [(t.name, round(t.chi2, 1), round(t.gain, 3),
-                     round(energy_kwh(t, f.forms[t.name]), 2)) for t in f.tests[:5]],
+                     round(energy_kwh(t, f.forms[t.name], run.bins.seconds), 2))
+                    for t in f.tests[:5]],
             "strength": f.strength, "fall": f.fall,
             "modes": [(m["mode"], round(m["missing_kw"], 2), round(m["stderr_kw"], 2))
                       for m in f.modes if math.isfinite(m["missing_kw"])],

@@ -1,10 +1,11 @@
-"""Stages 5-10 on BMS logs: the power path (:mod:`ebus_env.diagnostics.power_path`) in place
-of the SoC windows' candidates and attribution.
+"""Stages 5-10 in the power domain: the power path (:mod:`ebus_env.diagnostics.power_path`)
+in place of the SoC windows' candidates and attribution.
 
 Where every log carries the pack's current and voltage, the missing power is read second by
-second in 10-s bins by operating mode, every bus-to-bus parameter (and the current sensor's
-gain and offset) is fitted to the logged power, and each candidate is decided by a held-out
-test. On several days of one bus each candidate is tried from each day on too, so that a
+second in 10-s bins by operating mode (on SoC-only logs, from the charge the SoC counts in
+each 5-min window: :mod:`~ebus_env.diagnostics.soc_power`), every bus-to-bus parameter (and
+the current sensor's gain and offset) is fitted to the logged power, and each candidate is
+decided by a held-out test. On several days of one bus each candidate is tried from each day on too, so that a
 fault that starts on a day is a verdict of its own, with the day it started.
 
 The stage fills ``ctx.found`` in the form the report reads, ``ctx.power`` (the power path's
@@ -28,6 +29,7 @@ from ebus_env.diagnostics.power_path import (
     energy_kwh,
     label,
 )
+from ebus_env.diagnostics.soc_power import logs_soc
 from ebus_env.diagnostics.stage06_attribution import Attributed
 from ebus_env.errors import ConfigError
 
@@ -36,19 +38,22 @@ if TYPE_CHECKING:
 
 DOMAINS = ("soc", "power", "auto")
 """``soc``: SoC windows (the default: on BMS logs the current counts the charge in each);
-``power``: BMS logs second by second; ``auto``: the power domain where every log carries the
-pack's current and voltage and no reference day is given, SoC windows otherwise."""
+``power``: the power path, BMS logs second by second and SoC-only logs by the charge the SoC
+counts in each 5-min window (:mod:`~ebus_env.diagnostics.soc_power`); ``auto``: the power
+domain where every log carries the pack's current and voltage and no reference day is
+given, SoC windows otherwise."""
 
 
 def domain_of(ctx: DiagnosisRun) -> str:
     """The domain the diagnosis works in: ``power`` or ``soc`` (see :data:`DOMAINS`)."""
     bms = all(logs_power(p) for p in ctx.profiles)
     if ctx.domain == "power" and not bms:
-        missing = [p.name for p in ctx.profiles if not logs_power(p)]
-        raise ConfigError(f"diagnose(domain='power') needs the pack's current and voltage on "
-                          f"every row, and {', '.join(dict.fromkeys(missing))} lack(s) them. "
-                          "Fix: map the battery_current_a and battery_voltage_v columns, or "
-                          "use domain='soc'.")
+        missing = [p.name for p in ctx.profiles if not (logs_power(p) or logs_soc(p))]
+        if missing:
+            raise ConfigError(f"diagnose(domain='power') needs the pack's current and voltage "
+                              f"or the SoC, and {', '.join(dict.fromkeys(missing))} lack(s) "
+                              "both. Fix: map the battery_current_a and battery_voltage_v "
+                              "columns, or the soc_frac column.")
     if ctx.domain == "power":
         return "power"
     return "power" if ctx.domain == "auto" and bms and ctx.reference is None else "soc"
@@ -90,7 +95,7 @@ def ranking_of(power, days: list[str]) -> list[dict]:
                "explained_fraction": t.gain, "explained_band": list(band),
                "chi2": t.chi2, "needed": f.needed, "since": days[form.since_day],
                "since_day": form.since_day, "parameters": {}, "interval": {},
-               "fitted_energy_kwh": energy_kwh(t, form)}
+               "fitted_energy_kwh": energy_kwh(t, form, power.bins.seconds)}
         rows.append(row)
     if f.verdict is not None and f.strength:
         named = next((r for r in rows if r["effect"] == f.verdict

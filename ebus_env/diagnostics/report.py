@@ -46,7 +46,9 @@ def tables(d) -> list[tuple[str, list[str], list[list[str]]]]:
                     "a narrow range of them)", ["parameter", "value"],
                     [[name, f"{value:.4g}"] for name, value in ref["values"].items()]))
     if d.bus_fit:
-        out.append(("The bus as its logs give it (fitted to the logged power; the sensor's "
+        out.append(("The bus as its logs give it (fitted to the logged power, on a SoC-only "
+                    "log the SoC's count in each window, where the current sensor's gain and "
+                    "offset stand for the BMS count's capacity error and drift; the sensor's "
                     "terms per day where so)", ["parameter", "value", "range searched",
                                                 "at an end"],
                     [[r["parameter"], f"{r['value']:.4g}",
