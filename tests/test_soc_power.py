@@ -67,9 +67,9 @@ def test_a_soc_only_day_in_the_power_domain_names_its_effect_and_a_control_day_n
     in 5-min windows; the same bus without it gets no verdict."""
     from ebus_env.diagnostics import diagnose
 
-    case, profiles = soc_day(tmp_path, "heating", "cabin_hvac", hours=6.0)
+    case, profiles = soc_day(tmp_path, "heating", "cabin_hvac", hours=4.0)
     d = diagnose(hidden.baseline_bus(case), profiles, domain="power")
     assert d.domain == "power" and d.verdict == "cabin_hvac"
-    case, quiet = soc_day(tmp_path, "quiet", None, hours=6.0)
+    case, quiet = soc_day(tmp_path, "quiet", None, hours=4.0)
     q = diagnose(hidden.baseline_bus(case), quiet, domain="power")
     assert q.verdict is None
