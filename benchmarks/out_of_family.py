@@ -300,7 +300,7 @@ def diagnose_truth_day(job, ladder: bool = True) -> dict:
              if expected == "outside_library" else
              CONTROL_ADDS[_index(case.case_id) % len(CONTROL_ADDS)] if expected is None
              else expected)
-    # a BMS log in the power domain: second by second
+    # the power domain: a BMS log second by second, a SoC-only log by window
     power = isinstance(job, Job) and job.domain == "power" and not reference
     if power:  # the bus fitted to the logged power; each library candidate's held-out fall
         d = diagnose(bus, profiles, freedom=freedom, domain="power")
@@ -365,7 +365,7 @@ def diagnose_truth_bus(job: Job) -> dict:
     profiles, records, truth = truth_bus(job.source, bus_case, Path(job.folder), job.log == "bms")
     bus = load_bus("12m", without=list(BASELINE_WITHOUT))
     t0, cpu0 = time.perf_counter(), time.process_time()
-    # a BMS log in the power domain: second by second, the bus fitted to the logged power
+    # the power domain: the bus fitted to the logged power (a SoC-only log's by window)
     power = job.domain == "power"
     d = diagnose(bus, profiles, calibrate=not power, domain="power" if power else "soc")
     return {"cpu_s": time.process_time() - cpu0, "log": job.log, "kind": "bus",

@@ -217,9 +217,9 @@ def make_bins(profiles, runs: list[np.ndarray], day_of: list[int], lag: int = 0,
     """Bins of ``bin_s`` of every profile from the model's run along it (``runs``: one
     ``(n_seconds, len(TRACE))`` per profile, made with the logger's ``lag`` and a charger
     delivering ``delivered_frac`` of its rating): their modes, and whether each enters the
-    fits. A bin
-    on a charger enters only where both the model's charger and the logged power show the
-    charger at its rating the whole bin (the loads then show as they do standing)."""
+    fits. A bin on a charger enters only where both the model's charger and the logged power
+    show the charger at its rating the whole bin (the loads then show as they do standing);
+    a SoC-only log's window on a charger never does."""
     k = int(bin_s)
     cols = {name: [] for name in ("profile", "first", "day", "block", "hour", "fit")}
     shares = []

@@ -5,8 +5,9 @@ Where every log carries the pack's current and voltage, the missing power is rea
 second in 10-s bins by operating mode (on SoC-only logs, from the charge the SoC counts in
 each 5-min window: :mod:`~ebus_env.diagnostics.soc_power`), every bus-to-bus parameter (and
 the current sensor's gain and offset) is fitted to the logged power, and each candidate is
-decided by a held-out test. On several days of one bus each candidate is tried from each day on too, so that a
-fault that starts on a day is a verdict of its own, with the day it started.
+decided by a held-out test. On several days of one bus each candidate is tried from each day
+on too, so that a fault that starts on a day is a verdict of its own, with the day it
+started.
 
 The stage fills ``ctx.found`` in the form the report reads, ``ctx.power`` (the power path's
 run) and ``ctx.days`` (the date or log of each day).
