@@ -45,7 +45,8 @@ def test_the_soc_count_gives_a_missing_load_window_by_window(tmp_path):
     _, logged = soc_day(tmp_path, "more_aux_logged", step_pct=0.0, **{BASE_W: base_w + 4e3})
     assert logs_soc(logged[0]) and not logs_power(logged[0])
     model_wv, missing_w = window_missing_w(model, logged[0], model.params)
-    plugged = logged[0].channel("charger_connected")[::10][:len(missing_w)] > 0.5
+    every = int(round(1.0 / hidden.DT_S))  # model steps a logged second
+    plugged = logged[0].channel("charger_connected")[::every][:len(missing_w)] > 0.5
     per = int(WINDOW_S)
     windows = [missing_w[a] for a in range(0, len(missing_w) - per + 1, per)
                if not plugged[a:a + per].any()]
@@ -55,7 +56,7 @@ def test_the_soc_count_gives_a_missing_load_window_by_window(tmp_path):
     # the copy carries the count as a current and the model's voltage, for the power path
     copy = as_power_logs(model, logged, model.params)[0]
     assert logs_power(copy) and not logs_power(logged[0])
-    power_w = (copy.measured["battery_current_a"] * copy.measured["battery_voltage_v"])[::10]
+    power_w = (copy.measured["battery_current_a"] * copy.measured["battery_voltage_v"])[::every]
     assert power_w[:per].mean() == pytest.approx(model_wv[:per, 0].mean() + missing_w[0],
                                                  rel=1e-4)
 

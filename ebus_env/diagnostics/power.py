@@ -173,6 +173,12 @@ class Bins:
     def __len__(self) -> int:
         return len(self.first)
 
+    @property
+    def by_window(self) -> bool:
+        """Whether the bins are a SoC-only log's windows (:mod:`.soc_power`), longer than
+        :data:`BIN_S`: each mixes the modes, and its power is a count without steps."""
+        return self.seconds > BIN_S
+
     def means(self, per_second: list[np.ndarray]) -> np.ndarray:
         """Means over each bin of per-second series, one per profile (each ``(..., n)``):
         ``(..., n_bins)``."""

@@ -24,7 +24,6 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from ebus_env.diagnostics.power import (
-    BIN_S,
     MODES,
     TRACE,
     Bins,
@@ -102,7 +101,7 @@ def outside_forms(profiles, bins: Bins, base_runs: list[np.ndarray]) -> list[For
                         f"an unknown load of a kW for {AFTER_DOORS_S:.0f} s after each door "
                         "closing (an air compressor)"))
     # a minute on, over several stops; a SoC-only log's power has no steps to show
-    if sum(float(x.sum()) for x in switched) >= 60.0 and bins.seconds <= BIN_S:
+    if sum(float(x.sum()) for x in switched) >= 60.0 and not bins.by_window:
         out.append(Form("load switching on and off while standing", "outside",
                         1e3 * bins.means([x.astype(float) for x in switched])[None, :],
                         "a load of a kW that switches on and off while the bus stands, seen "

@@ -132,7 +132,7 @@ def class_weights(residual: np.ndarray, bins, use: np.ndarray) -> np.ndarray:
     """1 / variance of each bin from the robust scatter (MAD) of the residual in its dominant
     operating mode; a mode with too few bins to say takes the scatter of all bins."""
     # a SoC-only log's window mixes the modes, and its noise is the SoC's steps in any mode
-    mode = np.argmax(bins.mode_share, axis=1) if bins.seconds <= BIN_S else np.zeros(len(bins))
+    mode = np.zeros(len(bins)) if bins.by_window else np.argmax(bins.mode_share, axis=1)
     floor = 50.0  # W: a bin is never trusted beyond the log's resolution
 
     def sigma(r):
@@ -596,7 +596,7 @@ class PowerRun:
     def logger_lag_s(self) -> float | None:
         """Where a logged second starts against its time stamp [s] (:func:`logger_lag`); None
         on SoC-only logs, read by window."""
-        if self.bins.seconds > BIN_S:
+        if self.bins.by_window:
             return None
         return self.bins.lag * self.profiles[0].dt_s
 
@@ -610,16 +610,15 @@ def diagnose_power(bus, profiles, day_of: list[int], add=(), fixed=None, say=Non
     fixed = dict(fixed or {})
     model = bus.build(profiles[0].dt_s)
     bms = all(logs_power(p) for p in profiles)
-    pack = {k: v for k, v in pack_values(model, profiles).items() if k not in fixed} \
-        if bms else {}
-    start = {**pack, **fixed}
-    if bms:
+    pack: dict[str, float] = {}
+    if bms:  # the capacity from the counted charge, the resistance from the logged voltage
+        pack = {k: v for k, v in pack_values(model, profiles).items() if k not in fixed}
         resistance = pack_resistance(model, profiles,
-                                     model.param_vector(model.carry_over(start)))
+                                     model.param_vector(model.carry_over({**pack, **fixed})))
         pack.update({k: v for k, v in resistance.items() if k not in fixed})
-        start = {**pack, **fixed}
+    start = {**pack, **fixed}
     params = model.param_vector(model.carry_over(start))
-    if not bms:  # the SoC's count in each window, as a power log (mod:`.soc_power`)
+    if not bms:  # the SoC's count in each window, as a power log (:mod:`.soc_power`)
         profiles = as_power_logs(model, profiles, params)
     lag = logger_lag(model, profiles, params) if bms else 0
     first = anchored_runs(model, profiles, params, TRACE, lag)

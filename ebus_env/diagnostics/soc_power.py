@@ -18,9 +18,9 @@ on several days each candidate from each day on (a fault's start day).
 What differs from a BMS log: the BMS's capacity error scales its count, as a current
 sensor's gain does, and its estimate's slow drift adds a nearly constant current, as the
 sensor's offset does; both are fitted per day
-(:data:`~ebus_env.diagnostics.power_fit.SENSOR`). The SoC's steps (0.1 % of the pack is
-about 0.35 kWh on a 12 m bus, 4 kW over a 5-min window) and the BMS's recalibrations are
-noise, weighed as a BMS log's are (:func:`~ebus_env.diagnostics.power_path.class_weights`).
+(:data:`~ebus_env.diagnostics.power_fit.SENSOR`). The SoC's steps (0.1 % of a 12 m bus's
+pack is about 0.2 kWh, 2.4 kW over a 5-min window) and the BMS's recalibrations are noise,
+weighed alike in every mode (:func:`~ebus_env.diagnostics.power_path.class_weights`).
 A window is a mix of operating modes, so a load by mode is told apart by the modes' shares
 only, and the steps of a load switching at stops do not show. The log has no voltage: the
 voltage the power path uses is the model's, so the pack's resistance is not read from it.
